@@ -1,0 +1,52 @@
+/// \file accel.h
+/// Building acceleration structures over a scene's triangles. The structures see only
+/// positions, indices and (for shadow rays) a per-triangle transmittance.
+#pragma once
+
+#include <cstdint>
+#include <memory>
+#include <span>
+#include <string>
+
+#include "specula/math.h"
+#include "specula/tracer.h"
+
+namespace specula {
+
+enum class AccelKind { Bvh, Brute };
+
+/// Parses "bvh" / "brute"; throws specula::Error listing the valid names otherwise.
+AccelKind parse_accel_kind(const std::string& name);
+
+/// What a structure is built over. Spans must outlive the build call only (data is copied
+/// or precomputed into the structure).
+struct TriangleInput {
+  std::span<const Vec3> positions;
+  std::span<const uint32_t> indices;  ///< 3 per triangle
+  /// Per-triangle RGB transmittance for shadow rays (0 = opaque). Empty = all opaque.
+  std::span<const Vec3> transmittance;
+};
+
+struct BvhOptions {
+  int bins = 12;              ///< SAH bins per axis (2..256)
+  int max_leaf_size = 16;     ///< hard cap; below it leaves are made by SAH termination
+  float traversal_cost = 1.0f;  ///< SAH cost of visiting a node, relative to one triangle test
+  int threads = 0;            ///< 0 = all hardware threads
+};
+
+/// Figures every build reports.
+struct BuildInfo {
+  double build_ms = 0.0;
+  size_t nodes = 0;
+  size_t leaves = 0;
+  uint32_t max_depth = 0;
+  double sah_cost = 0.0;  ///< SAH cost of the tree (root area normalised)
+  size_t bytes = 0;
+};
+
+/// Builds the requested structure. Throws specula::Error on invalid input (index out of
+/// range, non-finite vertex).
+std::unique_ptr<Tracer> build_tracer(AccelKind kind, const TriangleInput& input,
+                                     const BvhOptions& options = {}, BuildInfo* info = nullptr);
+
+}  // namespace specula

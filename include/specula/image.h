@@ -1,0 +1,43 @@
+/// \file image.h
+/// Image output (PNG through stb_image_write, EXR through tinyexr), HDR sky input, and
+/// atomic file writing.
+#pragma once
+
+#include <cstdint>
+#include <span>
+#include <string>
+#include <vector>
+
+#include "specula/math.h"
+#include "specula/render.h"
+#include "specula/scene.h"
+
+namespace specula {
+
+enum class Tonemap : uint8_t { Clamp, Reinhard };
+
+/// Writes \p bytes to \p path atomically: a temporary file in the same folder, fsync, rename.
+/// Refuses to overwrite \p protect (the input file) when given. Throws specula::Error.
+void write_file_atomic(const std::string& path, std::span<const uint8_t> bytes);
+
+/// Writes linear RGB as 8-bit sRGB PNG (clamped or Reinhard-tonemapped first).
+void write_png(const std::string& path, int width, int height, std::span<const Vec3> linear_rgb,
+               Tonemap tonemap = Tonemap::Clamp);
+/// Writes linear RGB as a half-float EXR.
+void write_exr(const std::string& path, int width, int height, std::span<const Vec3> linear_rgb);
+/// Picks PNG or EXR by extension (.png / .exr); throws for anything else.
+void write_image(const std::string& path, int width, int height, std::span<const Vec3> linear_rgb,
+                 Tonemap tonemap = Tonemap::Clamp);
+
+/// Reads an image into linear RGB (EXR and .hdr are linear; 8-bit formats are sRGB-decoded).
+std::vector<Vec3> read_image(const std::string& path, int& width, int& height);
+
+/// Loads sky.image_path into sky.image (no-op unless sky.type == SkyType::Image).
+void load_sky_image(Sky& sky);
+
+/// Writes each AOV of \p film next to \p base_path: "out.png" -> "out.depth.png" etc.
+/// (depth and normal as false colour PNG and linear EXR when the base is .exr, prim ids as
+/// hashed colours, cost as a heat map). Returns the paths written.
+std::vector<std::string> write_aovs(const std::string& base_path, const Film& film);
+
+}  // namespace specula

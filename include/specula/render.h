@@ -1,0 +1,84 @@
+/// \file render.h
+/// Cameras, film and the Whitted integrator. Integrators see a Tracer, never a structure.
+#pragma once
+
+#include <cstdint>
+#include <functional>
+#include <string>
+#include <vector>
+
+#include "specula/math.h"
+#include "specula/ray.h"
+#include "specula/scene.h"
+#include "specula/tracer.h"
+
+namespace specula {
+
+enum class Aov : uint8_t { Depth, Normal, PrimId, Cost };
+
+/// Parses "depth,normal,prim,cost" (also "primid", "prim_id"); throws specula::Error otherwise.
+std::vector<Aov> parse_aovs(const std::string& list);
+const char* aov_name(Aov aov);
+
+/// Linear float RGB film plus optional AOV planes (same size as color when requested).
+struct Film {
+  int width = 0, height = 0;
+  std::vector<Vec3> color;
+  std::vector<float> depth;       ///< primary hit distance, +inf on a miss
+  std::vector<Vec3> normal;       ///< primary shading normal, (0,0,0) on a miss
+  std::vector<uint32_t> prim_id;  ///< primary triangle index, kNoHit on a miss
+  std::vector<uint32_t> cost;     ///< BVH nodes visited by all rays of the pixel
+};
+
+struct RenderOptions {
+  int width = 640;
+  int height = 480;
+  std::string camera;        ///< camera name; empty = the scene's first camera
+  int max_reflect = 4;       ///< max mirror bounces on a path (seed 001's d_min/d_max)
+  int max_refract = 6;       ///< max refraction events on a path
+  int threads = 0;           ///< 0 = all hardware threads
+  int tile_size = 16;
+  std::vector<Aov> aovs;
+  /// Called now and then from the rendering threads' coordinator with the fraction done.
+  std::function<void(double)> progress;
+};
+
+struct RenderStats {
+  double render_ms = 0.0;
+  uint64_t primary_rays = 0;
+  uint64_t secondary_rays = 0;  ///< reflection + refraction
+  uint64_t shadow_rays = 0;
+  uint64_t total_rays() const { return primary_rays + secondary_rays + shadow_rays; }
+};
+
+/// Pinhole camera generating primary rays through pixel centres.
+class PinholeCamera {
+ public:
+  PinholeCamera(const Camera& cam, int width, int height);
+  /// Ray through image position (px, py) in pixels, (0,0) = top-left corner.
+  Ray generate(float px, float py) const;
+
+ private:
+  Vec3 origin_, lower_left_, du_, dv_;
+};
+
+/// Per-triangle shadow transmittance derived from the materials (transparency * (1 - F0-ish)
+/// tint): what the Tracer is built with so shadow rays can pass through glass and water.
+std::vector<Vec3> shadow_transmittance(const Scene& scene);
+
+/// Renders the scene with the iterative Whitted integrator. Bit-identical for any thread
+/// count. Throws specula::Error for an unknown camera or an absurd image size.
+Film render_whitted(const Scene& scene, const Tracer& tracer, const RenderOptions& options,
+                    RenderStats* stats = nullptr);
+
+/// Dielectric Fresnel reflectance for unpolarised light (exact formula). cos_i is the cosine
+/// of the incident angle (>= 0), eta = n_incident / n_transmitted. Returns 1 on total
+/// internal reflection.
+float fresnel_dielectric(float cos_i, float eta);
+
+/// Refracts unit direction \p d through the surface with unit normal \p n facing against d
+/// (dot(d, n) < 0), eta = n_incident / n_transmitted. Returns false on total internal
+/// reflection.
+bool refract(const Vec3& d, const Vec3& n, float eta, Vec3& out);
+
+}  // namespace specula
