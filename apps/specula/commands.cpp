@@ -1,0 +1,304 @@
+// render, trace and info subcommands.
+#include "commands.h"
+
+#include <tbb/parallel_for.h>
+#include <tbb/task_arena.h>
+#include <unistd.h>
+
+#include <algorithm>
+#include <charconv>
+#include <cstdio>
+#include <filesystem>
+#include <fstream>
+#include <iostream>
+#include <mutex>
+#include <string>
+#include <vector>
+
+#include "specula/error.h"
+#include "specula/image.h"
+#include "specula/timer.h"
+
+namespace specula::cli {
+namespace {
+
+double median(std::vector<double> v) {
+  std::sort(v.begin(), v.end());
+  const size_t n = v.size();
+  return n == 0 ? 0.0 : (n % 2 ? v[n / 2] : 0.5 * (v[n / 2 - 1] + v[n / 2]));
+}
+
+std::string with_thousands(uint64_t n) {
+  std::string s = std::to_string(n);
+  for (int i = static_cast<int>(s.size()) - 3; i > 0; i -= 3) s.insert(static_cast<size_t>(i), ",");
+  return s;
+}
+
+void print_build(const char* accel, const BuildInfo& b) {
+  std::printf("build    %9.2f ms  (%s: %s nodes, %s leaves, depth %u, SAH cost %.2f, %.2f MiB)\n",
+              b.build_ms, accel, with_thousands(b.nodes).c_str(), with_thousands(b.leaves).c_str(),
+              b.max_depth, b.sah_cost, static_cast<double>(b.bytes) / (1024.0 * 1024.0));
+}
+
+Scene load_timed(const std::string& spec, const LoadOptions& load, double& ms) {
+  Timer t;
+  Scene scene = load_scene(spec, load);
+  ms = t.ms();
+  return scene;
+}
+
+/// A progress line on stderr, only when stderr is a terminal and the work has taken > 1 s.
+class ProgressLine {
+ public:
+  explicit ProgressLine(std::string label) : label_(std::move(label)), tty_(isatty(STDERR_FILENO) != 0) {}
+  ~ProgressLine() { finish(); }
+  void update(double fraction) {
+    if (!tty_) return;
+    std::lock_guard lock(mutex_);
+    if (timer_.ms() < 1000.0) return;
+    const int pct = static_cast<int>(std::clamp(fraction, 0.0, 1.0) * 100.0);
+    if (pct == last_) return;
+    last_ = pct;
+    std::fprintf(stderr, "\r%s %3d%%  (%.1f s)", label_.c_str(), pct, timer_.ms() / 1000.0);
+    std::fflush(stderr);
+    shown_ = true;
+  }
+  void finish() {
+    if (shown_) std::fprintf(stderr, "\r\033[K");
+    shown_ = false;
+  }
+
+ private:
+  std::string label_;
+  bool tty_;
+  bool shown_ = false;
+  int last_ = -1;
+  Timer timer_;
+  std::mutex mutex_;
+};
+
+bool same_file(const std::filesystem::path& a, const std::filesystem::path& b) {
+  std::error_code ec;
+  return std::filesystem::exists(a, ec) && std::filesystem::exists(b, ec) &&
+         std::filesystem::equivalent(a, b, ec);
+}
+
+}  // namespace
+
+int render(const RenderOptions& options) {
+  const std::string ext = std::filesystem::path(options.output).extension().string();
+  if (ext != ".png" && ext != ".exr" && ext != ".PNG" && ext != ".EXR")
+    throw Error(options.output + ": output must end in .png or .exr");
+  if (same_file(options.output, options.scene))
+    throw Error(options.output + ": refusing to overwrite the input scene");
+
+  double load_ms = 0;
+  Scene scene = load_timed(options.scene, options.load, load_ms);
+  std::printf("scene    %s: %s triangles, %zu materials, %zu lights, %zu cameras\n",
+              scene.name.empty() ? options.scene.c_str() : scene.name.c_str(),
+              with_thousands(scene.triangle_count()).c_str(), scene.materials.size(),
+              scene.lights.size(), scene.cameras.size());
+  std::printf("load     %9.2f ms\n", load_ms);
+
+  specula::RenderOptions ro = options.render;
+  ro.aovs = parse_aovs(options.aovs);
+  const std::vector<Vec3> transmittance = shadow_transmittance(scene);
+  const std::vector<Vec3> no_transmittance;
+  BuildInfo build;
+  BvhOptions bvh = options.bvh;
+  bvh.threads = ro.threads;
+  const auto tracer =
+      build_tracer(parse_accel_kind(options.accel),
+                   TriangleInput{scene.positions, scene.indices, transmittance}, bvh, &build);
+  print_build(options.accel.c_str(), build);
+
+  ProgressLine progress("rendering");
+  ro.progress = [&progress](double f) { progress.update(f); };
+  std::vector<double> times;
+  Film film;
+  RenderStats stats;
+  for (int frame = 0; frame < options.frames; ++frame) {
+    stats = {};
+    film = render_whitted(scene, *tracer, ro, &stats);
+    times.push_back(stats.render_ms);
+  }
+  progress.finish();
+  const double ms = median(times);
+  const uint64_t rays = stats.total_rays();
+  std::printf("render   %9.2f ms  (%dx%d, %s%s, %.2f fps)\n", ms, ro.width, ro.height,
+              options.frames > 1 ? "median of " : "",
+              options.frames > 1 ? (std::to_string(options.frames) + " frames").c_str() : "1 frame",
+              1000.0 / std::max(ms, 1e-9));
+  std::printf("rays     %s  (%s primary, %s secondary, %s shadow)\n", with_thousands(rays).c_str(),
+              with_thousands(stats.primary_rays).c_str(), with_thousands(stats.secondary_rays).c_str(),
+              with_thousands(stats.shadow_rays).c_str());
+  std::printf("speed    %9.2f Mrays/s\n", static_cast<double>(rays) / (ms * 1e3));
+
+  const Tonemap tm = options.tonemap == "reinhard" ? Tonemap::Reinhard : Tonemap::Clamp;
+  write_image(options.output, film.width, film.height, film.color, tm);
+  std::printf("wrote    %s\n", options.output.c_str());
+  for (const std::string& path : write_aovs(options.output, film)) std::printf("wrote    %s\n", path.c_str());
+  return 0;
+}
+
+namespace {
+
+/// Parses the ray file: one ray per non-empty line, "ox oy oz dx dy dz"; '#' starts a comment.
+std::vector<Ray> read_rays(const std::string& path) {
+  std::ifstream file;
+  std::istream* in = &std::cin;
+  if (path != "-") {
+    file.open(path, std::ios::binary);
+    if (!file) throw Error(path + ": cannot open ray file");
+    in = &file;
+  }
+  std::vector<Ray> rays;
+  std::string line;
+  uint64_t line_no = 0;
+  while (std::getline(*in, line)) {
+    ++line_no;
+    const size_t hash = line.find('#');
+    if (hash != std::string::npos) line.resize(hash);
+    const char* p = line.data();
+    const char* end = p + line.size();
+    auto skip_ws = [&] {
+      while (p < end && (*p == ' ' || *p == '\t' || *p == '\r' || *p == ',')) ++p;
+    };
+    skip_ws();
+    if (p == end) continue;
+    float v[6];
+    for (int i = 0; i < 6; ++i) {
+      skip_ws();
+      if (*p == '+') ++p;  // from_chars does not accept a leading '+'
+      const auto [next, ec] = std::from_chars(p, end, v[i]);
+      if (ec != std::errc() || !std::isfinite(v[i]))
+        throw Error(path + ": line " + std::to_string(line_no) + ": expected 6 finite numbers 'ox oy oz dx dy dz'" +
+                    (ec == std::errc() ? " (value " + std::to_string(i + 1) + " is not finite)" : ""));
+      p = next;
+    }
+    skip_ws();
+    if (p != end) throw Error(path + ": line " + std::to_string(line_no) + ": more than 6 numbers");
+    Ray r;
+    r.org = {v[0], v[1], v[2]};
+    r.dir = {v[3], v[4], v[5]};
+    if (r.dir == Vec3{})
+      throw Error(path + ": line " + std::to_string(line_no) + ": zero direction");
+    r.tmin = 0.0f;
+    r.tmax = kInf;
+    rays.push_back(r);
+  }
+  if (in->bad()) throw Error(path + ": read error");
+  return rays;
+}
+
+}  // namespace
+
+int trace(const TraceOptions& options) {
+  double load_ms = 0;
+  Scene scene = load_timed(options.scene, options.load, load_ms);
+  const std::vector<Ray> rays = read_rays(options.rays);
+
+  const int threads = options.threads <= 0 ? tbb::info::default_concurrency() : options.threads;
+  tbb::task_arena arena(threads);
+  BuildInfo build;
+  BvhOptions bvh = options.bvh;
+  bvh.threads = threads;
+  const auto tracer =
+      build_tracer(parse_accel_kind(options.accel), TriangleInput{scene.positions, scene.indices, {}}, bvh, &build);
+
+  std::vector<Hit> hits(rays.size());
+  std::vector<double> times;
+  for (int pass = 0; pass < options.repeat; ++pass) {
+    Timer t;
+    constexpr size_t kChunk = 1024;
+    const size_t chunks = (rays.size() + kChunk - 1) / kChunk;
+    if (threads == 1) {
+      tracer->intersect(rays, hits);
+    } else {
+      arena.execute([&] {
+        tbb::parallel_for(size_t{0}, chunks, [&](size_t c) {
+          const size_t b = c * kChunk, n = std::min(kChunk, rays.size() - b);
+          tracer->intersect(std::span(rays).subspan(b, n), std::span(hits).subspan(b, n));
+        });
+      });
+    }
+    times.push_back(t.ms());
+  }
+
+  // Output: one line per ray; large outputs go through one buffered stream.
+  std::string out;
+  out.reserve(rays.size() * 20);
+  char buf[64];
+  for (const Hit& h : hits) {
+    if (h.hit()) {
+      const int n = std::snprintf(buf, sizeof buf, "%.9g %u\n", static_cast<double>(h.t), h.prim);
+      out.append(buf, static_cast<size_t>(n));
+    } else {
+      out += "miss\n";
+    }
+  }
+  std::fwrite(out.data(), 1, out.size(), stdout);
+  std::fflush(stdout);
+
+  if (options.stats) {
+    const double ms = median(times);
+    std::fprintf(stderr, "load     %9.2f ms  (%s triangles)\n", load_ms,
+                 with_thousands(scene.triangle_count()).c_str());
+    std::fprintf(stderr, "build    %9.2f ms  (%s, %s nodes, SAH cost %.2f, %zu bytes)\n", build.build_ms,
+                 options.accel.c_str(), with_thousands(build.nodes).c_str(), build.sah_cost, build.bytes);
+    std::fprintf(stderr, "trace    %9.3f ms  (%s rays, %d thread%s, median of %d pass%s)\n", ms,
+                 with_thousands(rays.size()).c_str(), threads, threads == 1 ? "" : "s", options.repeat,
+                 options.repeat == 1 ? "" : "es");
+    std::fprintf(stderr, "speed    %9.2f Mrays/s\n", static_cast<double>(rays.size()) / (std::max(ms, 1e-9) * 1e3));
+  }
+  return 0;
+}
+
+int info(const InfoOptions& options) {
+  double load_ms = 0;
+  const Scene scene = load_timed(options.scene, options.load, load_ms);
+  const Aabb b = scene.bounds();
+  std::printf("scene      %s  (loaded in %.2f ms)\n", scene.name.empty() ? options.scene.c_str() : scene.name.c_str(),
+              load_ms);
+  std::printf("triangles  %s\n", with_thousands(scene.triangle_count()).c_str());
+  std::printf("vertices   %s\n", with_thousands(scene.positions.size()).c_str());
+  if (b.empty())
+    std::printf("bounds     empty\n");
+  else
+    std::printf("bounds     [%g %g %g] - [%g %g %g]  (extent %g x %g x %g)\n", b.min.x, b.min.y, b.min.z, b.max.x,
+                b.max.y, b.max.z, b.extent().x, b.extent().y, b.extent().z);
+  std::printf("meshes     %zu\n", scene.meshes.size());
+  for (const MeshRange& m : scene.meshes)
+    std::printf("  %-28s %10s triangles (first %u)\n", m.name.c_str(), with_thousands(m.triangle_count).c_str(),
+                m.first_triangle);
+  std::printf("materials  %zu\n", scene.materials.size());
+  for (const Material& m : scene.materials)
+    std::printf(
+        "  %-28s diffuse (%.3g %.3g %.3g) specular (%.3g %.3g %.3g)^%g reflect %.3g transparent %.3g ior %.3g "
+        "absorb (%.3g %.3g %.3g) emit (%.3g %.3g %.3g)\n",
+        m.name.c_str(), m.diffuse.x, m.diffuse.y, m.diffuse.z, m.specular.x, m.specular.y, m.specular.z,
+        m.phong_exponent, m.reflectivity, m.transparency, m.ior, m.absorption.x, m.absorption.y, m.absorption.z,
+        m.emission.x, m.emission.y, m.emission.z);
+  std::printf("lights     %zu\n", scene.lights.size());
+  for (const Light& l : scene.lights) {
+    const char* type = l.type == LightType::Point ? "point" : l.type == LightType::Directional ? "directional" : "sphere";
+    if (l.type == LightType::Directional)
+      std::printf("  %-28s %s dir (%g %g %g) color (%g %g %g) x %g\n", l.name.c_str(), type, l.direction.x,
+                  l.direction.y, l.direction.z, l.color.x, l.color.y, l.color.z, l.intensity);
+    else
+      std::printf("  %-28s %s at (%g %g %g) color (%g %g %g) x %g%s\n", l.name.c_str(), type, l.position.x,
+                  l.position.y, l.position.z, l.color.x, l.color.y, l.color.z, l.intensity,
+                  l.type == LightType::Sphere
+                      ? (" radius " + std::to_string(l.radius) + ", " + std::to_string(l.samples) + " samples").c_str()
+                      : "");
+  }
+  std::printf("cameras    %zu\n", scene.cameras.size());
+  for (const Camera& c : scene.cameras)
+    std::printf("  %-28s at (%g %g %g) looking at (%g %g %g), vfov %g deg\n", c.name.c_str(), c.position.x,
+                c.position.y, c.position.z, c.target.x, c.target.y, c.target.z, c.vfov_degrees);
+  const char* sky = scene.sky.type == SkyType::Constant ? "constant" : scene.sky.type == SkyType::Gradient ? "gradient" : "image";
+  std::printf("sky        %s%s\n", sky, scene.sky.type == SkyType::Image ? (" " + scene.sky.image_path).c_str() : "");
+  return 0;
+}
+
+}  // namespace specula::cli

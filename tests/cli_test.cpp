@@ -1,0 +1,149 @@
+// End-to-end tests of the specula command-line tool: exit codes, messages, output files.
+#include <gtest/gtest.h>
+#include <sys/wait.h>
+
+#include <cstdio>
+#include <cstdlib>
+#include <filesystem>
+#include <fstream>
+#include <sstream>
+#include <string>
+
+#include "test_util.h"
+
+namespace fs = std::filesystem;
+
+namespace {
+
+struct RunResult {
+  int exit_code = -1;
+  bool signaled = false;
+  std::string out, err;
+};
+
+std::string slurp(const fs::path& p) {
+  std::ifstream f(p, std::ios::binary);
+  std::stringstream ss;
+  ss << f.rdbuf();
+  return ss.str();
+}
+
+/// Runs the CLI with \p args (shell-quoted by the caller) and captures stdout/stderr.
+RunResult run_cli(const std::string& args, const fs::path& dir) {
+  const fs::path out = dir / "stdout.txt", err = dir / "stderr.txt";
+  const std::string cmd = std::string("'") + SPECULA_CLI_PATH + "' " + args + " >'" + out.string() + "' 2>'" +
+                          err.string() + "' </dev/null";
+  const int status = std::system(cmd.c_str());
+  RunResult r;
+  if (WIFEXITED(status)) r.exit_code = WEXITSTATUS(status);
+  // std::system runs /bin/sh, which reports a child killed by signal N as exit 128+N.
+  r.signaled = WIFSIGNALED(status) || (r.exit_code > 128);
+  r.out = slurp(out);
+  r.err = slurp(err);
+  return r;
+}
+
+class Cli : public ::testing::Test {
+ protected:
+  void SetUp() override {
+    if (std::string(SPECULA_CLI_PATH).empty()) GTEST_SKIP() << "specula CLI not built";
+    dir_ = specula::test::temp_dir(::testing::UnitTest::GetInstance()->current_test_info()->name());
+  }
+  void TearDown() override {
+    if (!dir_.empty()) fs::remove_all(dir_);
+  }
+  fs::path write(const std::string& name, const std::string& text) {
+    const fs::path p = dir_ / name;
+    std::ofstream(p, std::ios::binary) << text;
+    return p;
+  }
+  fs::path dir_;
+};
+
+// Two triangles in file order: a quad in the z = 0 plane (fan-triangulated: (0,1,2), (0,2,3)).
+constexpr const char* kQuadObj =
+    "v -1 -1 0\nv 1 -1 0\nv 1 1 0\nv -1 1 0\n"
+    "f 1 2 3 4\n";
+
+}  // namespace
+
+TEST_F(Cli, HelpOnEverySubcommand) {
+  for (const char* sub : {"", "render ", "trace ", "info ", "bench ", "bench trace "}) {
+    const RunResult r = run_cli(std::string(sub) + "--help", dir_);
+    EXPECT_EQ(r.exit_code, 0) << sub;
+    EXPECT_NE(r.out.find("Usage"), std::string::npos) << sub << r.out;
+  }
+}
+
+TEST_F(Cli, TracePrintsDistanceAndFileOrderPrimitive) {
+  const fs::path obj = write("quad.obj", kQuadObj);
+  // Ray 1 hits the lower-right triangle (prim 0), ray 2 the upper-left (prim 1), ray 3 misses.
+  const fs::path rays = write("rays.txt", "0.5 -0.5 2 0 0 -1\n-0.5 0.5 -3 0 0 1\n\n5 5 5 0 0 -1\n");
+  const RunResult r = run_cli("trace '" + obj.string() + "' --rays '" + rays.string() + "'", dir_);
+  ASSERT_EQ(r.exit_code, 0) << r.err;
+  EXPECT_EQ(r.out, "2 0\n3 1\nmiss\n");
+}
+
+TEST_F(Cli, TraceStatsGoToStderr) {
+  const fs::path obj = write("quad.obj", kQuadObj);
+  const fs::path rays = write("rays.txt", "0.5 -0.5 2 0 0 -1\n");
+  const RunResult r = run_cli("trace '" + obj.string() + "' --rays '" + rays.string() + "' --stats --repeat 3", dir_);
+  ASSERT_EQ(r.exit_code, 0) << r.err;
+  EXPECT_EQ(r.out, "2 0\n");
+  for (const char* key : {"load", "build", "trace", "Mrays/s"}) EXPECT_NE(r.err.find(key), std::string::npos) << r.err;
+}
+
+TEST_F(Cli, MalformedRayFileNamesTheLine) {
+  const fs::path obj = write("quad.obj", kQuadObj);
+  const fs::path rays = write("rays.txt", "0 0 1 0 0 -1\n0 0 1 0 zero -1\n");
+  const RunResult r = run_cli("trace '" + obj.string() + "' --rays '" + rays.string() + "'", dir_);
+  EXPECT_EQ(r.exit_code, 1);
+  EXPECT_FALSE(r.signaled);
+  EXPECT_NE(r.err.find("rays.txt: line 2"), std::string::npos) << r.err;
+}
+
+TEST_F(Cli, MissingSceneIsAClearError) {
+  const RunResult r = run_cli("render '" + (dir_ / "nope.obj").string() + "' -o '" + (dir_ / "x.png").string() + "'", dir_);
+  EXPECT_EQ(r.exit_code, 1);
+  EXPECT_NE(r.err.find("nope.obj"), std::string::npos) << r.err;
+  EXPECT_FALSE(fs::exists(dir_ / "x.png"));
+}
+
+TEST_F(Cli, BadOptionsAreUsageErrors) {
+  EXPECT_NE(run_cli("render cornell --accel octree", dir_).exit_code, 0);
+  EXPECT_NE(run_cli("render cornell --width 0", dir_).exit_code, 0);
+  EXPECT_NE(run_cli("render cornell --width 100000", dir_).exit_code, 0);
+  const RunResult r = run_cli("render cornell -o '" + (dir_ / "x.bmp").string() + "'", dir_);
+  EXPECT_EQ(r.exit_code, 1);
+  EXPECT_NE(r.err.find(".png or .exr"), std::string::npos) << r.err;
+}
+
+TEST_F(Cli, RenderWritesImageAndPrintsTimings) {
+  const fs::path png = dir_ / "cornell.png";
+  const RunResult r = run_cli("render cornell --width 64 --height 48 --aov depth,cost -o '" + png.string() + "'", dir_);
+  ASSERT_EQ(r.exit_code, 0) << r.err;
+  for (const char* key : {"load", "build", "render", "Mrays/s", " ms"}) EXPECT_NE(r.out.find(key), std::string::npos) << r.out;
+  EXPECT_TRUE(fs::exists(png));
+  EXPECT_TRUE(fs::exists(dir_ / "cornell.depth.png"));
+  EXPECT_TRUE(fs::exists(dir_ / "cornell.cost.png"));
+  // No temporary files left behind.
+  for (const auto& e : fs::directory_iterator(dir_))
+    EXPECT_EQ(e.path().filename().string().find(".tmp"), std::string::npos) << e.path();
+}
+
+TEST_F(Cli, RenderRefusesToOverwriteItsInput) {
+  const fs::path obj = write("quad.obj", kQuadObj);
+  const fs::path png = dir_ / "quad.png";
+  fs::copy_file(obj, png);  // a "scene" that happens to have the output's name
+  const RunResult r = run_cli("render '" + png.string() + "' -o '" + png.string() + "'", dir_);
+  EXPECT_EQ(r.exit_code, 1);
+  EXPECT_EQ(slurp(png), kQuadObj);
+}
+
+TEST_F(Cli, InfoDescribesAMesh) {
+  const fs::path obj = write("quad.obj", kQuadObj);
+  const RunResult r = run_cli("info '" + obj.string() + "'", dir_);
+  ASSERT_EQ(r.exit_code, 0) << r.err;
+  EXPECT_NE(r.out.find("triangles  2"), std::string::npos) << r.out;
+  EXPECT_NE(r.out.find("bounds     [-1 -1 0] - [1 1 0]"), std::string::npos) << r.out;
+}
