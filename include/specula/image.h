@@ -17,8 +17,10 @@ namespace specula {
 enum class Tonemap : uint8_t { Clamp, Reinhard };
 
 /// Writes \p bytes to \p path atomically: a temporary file in the same folder, fsync, rename.
-/// Refuses to overwrite \p protect (the input file) when given. Throws specula::Error.
-void write_file_atomic(const std::string& path, std::span<const uint8_t> bytes);
+/// On failure the temporary file is removed and \p path is left as it was. Refuses to
+/// overwrite \p protect (e.g. the input file) when given. Throws specula::Error.
+void write_file_atomic(const std::string& path, std::span<const uint8_t> bytes,
+                       const std::string& protect = {});
 
 /// Writes linear RGB as 8-bit sRGB PNG (clamped or Reinhard-tonemapped first).
 void write_png(const std::string& path, int width, int height, std::span<const Vec3> linear_rgb,

@@ -2,7 +2,9 @@
 /// Rays and hit records shared by every acceleration structure and integrator.
 #pragma once
 
+#include <cmath>
 #include <cstdint>
+#include <cstring>
 
 #include "specula/math.h"
 
@@ -42,5 +44,28 @@ struct TraceStats {
     return *this;
   }
 };
+
+/// Moves a surface point \p p (computed from barycentrics, so it lies within float error of
+/// the triangle) off the surface along \p n (the geometric normal, pointing to the side the
+/// new ray leaves into). The offset is a few ulps of the position's own magnitude instead of a
+/// fixed epsilon, so it works at any scene scale. Near the origin, where ulps become tiny,
+/// a small absolute offset takes over. See Waechter and Binder, "A Fast and Robust Method for
+/// Avoiding Self-Intersection", Ray Tracing Gems (2019), chapter 6.
+inline Vec3 offset_ray_origin(const Vec3& p, const Vec3& n) {
+  constexpr float kOrigin = 1.0f / 32.0f;
+  constexpr float kFloatScale = 1.0f / 65536.0f;
+  constexpr float kIntScale = 256.0f;
+  Vec3 out;
+  for (int i = 0; i < 3; ++i) {
+    const int32_t of = static_cast<int32_t>(kIntScale * n[i]);
+    int32_t bits;
+    float pi = p[i];
+    std::memcpy(&bits, &pi, sizeof bits);
+    bits += (p[i] < 0.0f) ? -of : of;  // moves away from the surface in ulps
+    std::memcpy(&pi, &bits, sizeof pi);
+    out[i] = std::fabs(p[i]) < kOrigin ? p[i] + kFloatScale * n[i] : pi;
+  }
+  return out;
+}
 
 }  // namespace specula

@@ -55,11 +55,12 @@ struct RenderStats {
 class PinholeCamera {
  public:
   PinholeCamera(const Camera& cam, int width, int height);
-  /// Ray through image position (px, py) in pixels, (0,0) = top-left corner.
+  /// Ray through image position (px, py) in pixels, (0,0) = top-left corner; the direction
+  /// is unit length, so hit distances are in scene units.
   Ray generate(float px, float py) const;
 
  private:
-  Vec3 origin_, lower_left_, du_, dv_;
+  Vec3 origin_, top_left_, du_, dv_;
 };
 
 /// Per-triangle shadow transmittance derived from the materials (transparency * (1 - F0-ish)

@@ -6,6 +6,7 @@
 #include <string>
 
 #include "accel/brute_tracer.h"
+#include "specula/bvh.h"
 #include "specula/error.h"
 #include "specula/timer.h"
 #include "accel/triangles.h"
@@ -58,12 +59,16 @@ void validate_input(const TriangleInput& input) {
   }
 }
 
-std::vector<TriangleVerts> gather_triangles(const TriangleInput& input) {
+std::vector<BvhTriangle> gather_triangles(const TriangleInput& input) {
   const size_t n = input.indices.size() / 3;
-  std::vector<TriangleVerts> tris(n);
+  std::vector<BvhTriangle> tris(n);
   for (size_t i = 0; i < n; ++i) {
-    tris[i] = {input.positions[input.indices[3 * i]], input.positions[input.indices[3 * i + 1]],
-               input.positions[input.indices[3 * i + 2]]};
+    for (int k = 0; k < 3; ++k) {
+      const Vec3& p = input.positions[input.indices[3 * i + k]];
+      tris[i].v[3 * k] = p.x;
+      tris[i].v[3 * k + 1] = p.y;
+      tris[i].v[3 * k + 2] = p.z;
+    }
   }
   return tris;
 }
@@ -88,8 +93,7 @@ std::unique_ptr<Tracer> build_tracer(AccelKind kind, const TriangleInput& input,
       return tracer;
     }
     case AccelKind::Bvh:
-      (void)options;
-      throw Error("build_tracer: the BVH is being implemented; use --accel brute for now");
+      return std::make_unique<Bvh>(Bvh::build(input, options, info));
   }
   throw Error("build_tracer: unknown accelerator kind");
 }

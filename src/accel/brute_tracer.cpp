@@ -7,12 +7,17 @@
 
 namespace specula::accel {
 
-BruteTracer::BruteTracer(const TriangleInput& input)
-    : tris_(gather_triangles(input)) {
+BruteTracer::BruteTracer(const TriangleInput& input) {
+  const std::vector<BvhTriangle> all = gather_triangles(input);
   const bool any_transparent =
       std::any_of(input.transmittance.begin(), input.transmittance.end(),
                   [](const Vec3& t) { return !is_opaque(t); });
-  if (any_transparent) transmittance_.assign(input.transmittance.begin(), input.transmittance.end());
+  for (uint32_t i = 0; i < all.size(); ++i) {
+    if (is_degenerate(all[i].vertex(0), all[i].vertex(1), all[i].vertex(2))) continue;
+    tris_.push_back(all[i]);
+    ids_.push_back(i);
+    if (any_transparent) transmittance_.push_back(input.transmittance[i]);
+  }
 }
 
 void BruteTracer::intersect(std::span<const Ray> rays, std::span<Hit> hits, TraceStats* stats) const {
@@ -25,8 +30,7 @@ void BruteTracer::intersect(std::span<const Ray> rays, std::span<Hit> hits, Trac
     hit.t = ray.tmax;
     TriHit th{};
     for (uint32_t i = 0; i < n; ++i) {
-      const TriangleVerts& tri = tris_[i];
-      if (intersect_watertight(wr, tri.v0, tri.v1, tri.v2, ray.tmin, hit.t, th)) {
+      if (intersect_watertight(wr, tris_[i].v, ray.tmin, hit.t, th)) {
         hit.t = th.t;
         hit.u = th.u;
         hit.v = th.v;
@@ -34,8 +38,8 @@ void BruteTracer::intersect(std::span<const Ray> rays, std::span<Hit> hits, Trac
       }
     }
     if (hit.hit()) {
-      const TriangleVerts& tri = tris_[hit.prim];
-      hit.ng = geometric_normal(tri.v0, tri.v1, tri.v2);
+      hit.ng = geometric_normal(tris_[hit.prim].v);
+      hit.prim = ids_[hit.prim];
     } else {
       hit = Hit{};
     }
@@ -58,9 +62,8 @@ void BruteTracer::transmittance(std::span<const Ray> rays, std::span<Vec3> out, 
     Vec3 tr{1.0f, 1.0f, 1.0f};
     TriHit th{};
     for (uint32_t i = 0; i < n; ++i) {
-      const TriangleVerts& tri = tris_[i];
       ++tested;
-      if (intersect_watertight(wr, tri.v0, tri.v1, tri.v2, ray.tmin, ray.tmax, th) &&
+      if (intersect_watertight(wr, tris_[i].v, ray.tmin, ray.tmax, th) &&
           th.t > ray.tmin && th.t < ray.tmax) {
         if (transmittance_.empty() || is_opaque(transmittance_[i])) {
           tr = Vec3{};
@@ -79,7 +82,7 @@ void BruteTracer::transmittance(std::span<const Ray> rays, std::span<Vec3> out, 
 }
 
 size_t BruteTracer::memory_bytes() const {
-  return tris_.size() * sizeof(TriangleVerts) + transmittance_.size() * sizeof(Vec3);
+  return tris_.size() * sizeof(BvhTriangle) + ids_.size() * sizeof(uint32_t) + transmittance_.size() * sizeof(Vec3);
 }
 
 }  // namespace specula::accel

@@ -24,8 +24,9 @@ class BruteTracer final : public Tracer {
   size_t memory_bytes() const override;
 
  private:
-  std::vector<TriangleVerts> tris_;
-  std::vector<Vec3> transmittance_;  ///< empty = all opaque
+  std::vector<BvhTriangle> tris_;     ///< non-degenerate triangles, input order
+  std::vector<uint32_t> ids_;        ///< scene index of each entry of tris_
+  std::vector<Vec3> transmittance_;  ///< per entry of tris_; empty = all opaque
 };
 
 }  // namespace specula::accel

@@ -21,11 +21,11 @@ namespace specula::accel {
 
 /// Per-ray constants of the watertight test.
 struct WatertightRay {
-  Vec3 org;
   int kx = 0, ky = 1, kz = 2;  ///< permutation: kz = dominant axis of the direction
+  float ox = 0, oy = 0, oz = 0;  ///< origin, permuted (org[kx], org[ky], org[kz])
   float sx = 0, sy = 0, sz = 0;  ///< shear (sx, sy) and scale (sz)
 
-  explicit WatertightRay(const Ray& ray) : org(ray.org) {
+  explicit WatertightRay(const Ray& ray) {
     const Vec3 a = abs(ray.dir);
     kz = (a.x >= a.y && a.x >= a.z) ? 0 : (a.y >= a.z ? 1 : 2);
     kx = kz == 2 ? 0 : kz + 1;
@@ -37,6 +37,9 @@ struct WatertightRay {
       kx = ky;
       ky = tmp;
     }
+    ox = ray.org[kx];
+    oy = ray.org[ky];
+    oz = ray.org[kz];
     // For a zero or NaN direction these are NaN/inf; every comparison below is written so that
     // NaN rejects, so such rays simply miss.
     sz = 1.0f / ray.dir[kz];
@@ -50,45 +53,48 @@ struct TriHit {
   float t, u, v;
 };
 
-/// Tests triangle (v0, v1, v2) against the ray; accepts hits with tmin <= t <= tmax. On success
-/// (u, v) are the barycentrics of v1 and v2. NaN-safe: non-finite intermediate values miss.
-inline bool intersect_watertight(const WatertightRay& r, const Vec3& v0, const Vec3& v1,
-                                 const Vec3& v2, float tmin, float tmax, TriHit& out) {
-  const Vec3 a = v0 - r.org, b = v1 - r.org, c = v2 - r.org;
-  const float az = a[r.kz], bz = b[r.kz], cz = c[r.kz];
-  const float ax = a[r.kx] - r.sx * az, ay = a[r.ky] - r.sy * az;
-  const float bx = b[r.kx] - r.sx * bz, by = b[r.ky] - r.sy * bz;
-  const float cx = c[r.kx] - r.sx * cz, cy = c[r.ky] - r.sy * cz;
+/// Tests the triangle with vertices v[0..2], v[3..5], v[6..8] against the ray; accepts hits
+/// with tmin <= t <= tmax. On success (u, v) are the barycentrics of vertices 1 and 2.
+/// NaN-safe: non-finite intermediate values miss. Brute force and BVH both call exactly this
+/// function on the same floats, so they agree bit for bit.
+inline bool intersect_watertight(const WatertightRay& r, const float* v, float tmin, float tmax,
+                                 TriHit& out) {
+  const int kx = r.kx, ky = r.ky, kz = r.kz;
+  const float az = v[kz] - r.oz, bz = v[3 + kz] - r.oz, cz = v[6 + kz] - r.oz;
+  const float ax = (v[kx] - r.ox) - r.sx * az, ay = (v[ky] - r.oy) - r.sy * az;
+  const float bx = (v[3 + kx] - r.ox) - r.sx * bz, by = (v[3 + ky] - r.oy) - r.sy * bz;
+  const float cx = (v[6 + kx] - r.ox) - r.sx * cz, cy = (v[6 + ky] - r.oy) - r.sy * cz;
 
   float u = cx * by - cy * bx;  // edge v1-v2: weight of v0
-  float v = ax * cy - ay * cx;  // edge v2-v0: weight of v1
-  float w = bx * ay - by * ax;  // edge v0-v1: weight of v2
+  float w1 = ax * cy - ay * cx;  // edge v2-v0: weight of v1
+  float w2 = bx * ay - by * ax;  // edge v0-v1: weight of v2
 
-  if (u == 0.0f || v == 0.0f || w == 0.0f) [[unlikely]] {
+  if (u == 0.0f || w1 == 0.0f || w2 == 0.0f) [[unlikely]] {
     // Exactly on an edge in float: decide in double so neighbours agree (paper, section 4).
     u = static_cast<float>(static_cast<double>(cx) * by - static_cast<double>(cy) * bx);
-    v = static_cast<float>(static_cast<double>(ax) * cy - static_cast<double>(ay) * cx);
-    w = static_cast<float>(static_cast<double>(bx) * ay - static_cast<double>(by) * ax);
+    w1 = static_cast<float>(static_cast<double>(ax) * cy - static_cast<double>(ay) * cx);
+    w2 = static_cast<float>(static_cast<double>(bx) * ay - static_cast<double>(by) * ax);
   }
   // Inside iff all edge functions have the same sign (two-sided). Written so NaN rejects.
-  const bool all_nonneg = u >= 0.0f && v >= 0.0f && w >= 0.0f;
-  const bool all_nonpos = u <= 0.0f && v <= 0.0f && w <= 0.0f;
+  const bool all_nonneg = u >= 0.0f && w1 >= 0.0f && w2 >= 0.0f;
+  const bool all_nonpos = u <= 0.0f && w1 <= 0.0f && w2 <= 0.0f;
   if (!(all_nonneg || all_nonpos)) return false;
-  const float det = u + v + w;
+  const float det = u + w1 + w2;
   if (!(det != 0.0f)) return false;  // degenerate (or edge-on) triangle, or NaN
 
-  const float t_scaled = u * (r.sz * az) + v * (r.sz * bz) + w * (r.sz * cz);
+  const float t_scaled = u * (r.sz * az) + w1 * (r.sz * bz) + w2 * (r.sz * cz);
   const float inv_det = 1.0f / det;
   const float t = t_scaled * inv_det;
   if (!(t >= tmin && t <= tmax)) return false;  // NaN rejects
   out.t = t;
-  out.u = v * inv_det;
-  out.v = w * inv_det;
+  out.u = w1 * inv_det;
+  out.v = w2 * inv_det;
   return true;
 }
 
 /// Unit geometric normal of a triangle as its winding gives it; zero for degenerate triangles.
-inline Vec3 geometric_normal(const Vec3& v0, const Vec3& v1, const Vec3& v2) {
+inline Vec3 geometric_normal(const float* v) {
+  const Vec3 v0{v[0], v[1], v[2]}, v1{v[3], v[4], v[5]}, v2{v[6], v[7], v[8]};
   return normalize(cross(v1 - v0, v2 - v0));
 }
 

@@ -1,0 +1,257 @@
+// `specula bench trace` (owner: accel): BVH build time and tracing throughput for the ray kinds
+// a Whitted renderer shoots (primary, shadow, secondary = reflection + refraction, diffuse
+// bounce), one thread and all threads, and Embree on the very same rays when compiled in.
+#include <algorithm>
+#include <cmath>
+#include <cstdio>
+#include <functional>
+#include <memory>
+#include <string>
+#include <vector>
+
+#include <tbb/blocked_range.h>
+#include <tbb/info.h>
+#include <tbb/parallel_for.h>
+#include <tbb/task_arena.h>
+
+#include "commands.h"
+#include "specula/accel.h"
+#include "specula/bvh.h"
+#include "specula/error.h"
+#include "specula/load.h"
+#include "specula/render.h"
+#include "specula/timer.h"
+
+#ifdef SPECULA_HAVE_EMBREE
+#include "embree_tracer.h"
+#endif
+
+namespace specula::cli {
+
+namespace {
+
+struct RaySet {
+  std::string name;
+  bool shadow = false;  ///< traced with transmittance() (any-hit) instead of intersect()
+  std::vector<Ray> rays;
+};
+
+/// Deterministic per-pixel random numbers (PCG hash), so every run traces the same rays.
+uint32_t pcg_hash(uint32_t v) {
+  const uint32_t state = v * 747796405u + 2891336453u;
+  const uint32_t word = ((state >> ((state >> 28u) + 4u)) ^ state) * 277803737u;
+  return (word >> 22u) ^ word;
+}
+float to_unit_float(uint32_t v) { return static_cast<float>(v >> 8) * (1.0f / 16777216.0f); }
+
+std::vector<RaySet> make_ray_sets(const Scene& scene, const Tracer& tracer, int width, int height) {
+  const PinholeCamera camera(scene.cameras.front(), width, height);
+  RaySet primary{"primary", false, {}};
+  primary.rays.reserve(static_cast<size_t>(width) * static_cast<size_t>(height));
+  for (int y = 0; y < height; ++y)
+    for (int x = 0; x < width; ++x)
+      primary.rays.push_back(camera.generate(static_cast<float>(x) + 0.5f, static_cast<float>(y) + 0.5f));
+  std::vector<Hit> hits(primary.rays.size());
+  tracer.intersect(primary.rays, hits);
+
+  RaySet shadow{"shadow", true, {}}, secondary{"secondary", false, {}}, diffuse{"diffuse", false, {}};
+  const Light* light = scene.lights.empty() ? nullptr : &scene.lights.front();
+  for (size_t i = 0; i < hits.size(); ++i) {
+    const Hit& h = hits[i];
+    if (!h.hit()) continue;
+    const Ray& pr = primary.rays[i];
+    const Vec3 p = pr.org + pr.dir * h.t;
+    const bool front = dot(pr.dir, h.ng) < 0.0f;
+    const Vec3 n = front ? h.ng : -h.ng;  // faces the incoming ray
+    const Vec3 above = offset_ray_origin(p, n), below = offset_ray_origin(p, -n);
+    if (light) {
+      Ray s;
+      s.org = above;
+      if (light->type == LightType::Directional) {
+        s.dir = normalize(-light->direction);
+        s.tmax = kInf;
+      } else {
+        const Vec3 to = light->position - above;
+        const float dist = length(to);
+        s.dir = dist > 0.0f ? to / dist : n;
+        s.tmax = dist * (1.0f - 1e-4f);
+      }
+      shadow.rays.push_back(s);
+    }
+    Ray refl;
+    refl.org = above;
+    refl.dir = normalize(reflect(pr.dir, n));
+    secondary.rays.push_back(refl);
+    Vec3 t;
+    if (refract(pr.dir, n, front ? 1.0f / 1.5f : 1.5f, t)) {
+      Ray refr;
+      refr.org = below;
+      refr.dir = normalize(t);
+      secondary.rays.push_back(refr);
+    }
+    // Cosine-weighted hemisphere around n (Malley's method), seeded by the pixel index.
+    const uint32_t seed = pcg_hash(static_cast<uint32_t>(i));
+    const float u1 = to_unit_float(seed), u2 = to_unit_float(pcg_hash(seed ^ 0x9E3779B9u));
+    const float r = std::sqrt(u1), phi = 2.0f * kPi * u2;
+    Vec3 tx, ty;
+    orthonormal_basis(n, tx, ty);
+    Ray d;
+    d.org = above;
+    d.dir = normalize(tx * (r * std::cos(phi)) + ty * (r * std::sin(phi)) + n * std::sqrt(std::max(0.0f, 1.0f - u1)));
+    diffuse.rays.push_back(d);
+  }
+  std::vector<RaySet> sets;
+  sets.push_back(std::move(primary));
+  if (light) sets.push_back(std::move(shadow));
+  sets.push_back(std::move(secondary));
+  sets.push_back(std::move(diffuse));
+  return sets;
+}
+
+double median(std::vector<double> v) {
+  std::sort(v.begin(), v.end());
+  return v.empty() ? 0.0 : v[v.size() / 2];
+}
+
+/// Median milliseconds of \p repeat calls of \p fn (after one warm-up call).
+double time_ms(int repeat, const std::function<void()>& fn) {
+  fn();
+  std::vector<double> ms;
+  for (int i = 0; i < std::max(1, repeat); ++i) {
+    const Timer t;
+    fn();
+    ms.push_back(t.ms());
+  }
+  return median(ms);
+}
+
+/// Traces \p set through \p tracer on \p threads threads (1 = the calling thread only) and
+/// returns the median Mrays/s.
+double trace_mrays(const Tracer& tracer, const RaySet& set, int threads, int repeat) {
+  if (set.rays.empty()) return 0.0;
+  std::vector<Hit> hits(set.rays.size());
+  std::vector<Vec3> trans(set.rays.size());
+  const std::span<const Ray> rays(set.rays);
+  const auto chunk = [&](size_t begin, size_t end) {
+    if (set.shadow)
+      tracer.transmittance(rays.subspan(begin, end - begin), std::span<Vec3>(trans).subspan(begin, end - begin));
+    else
+      tracer.intersect(rays.subspan(begin, end - begin), std::span<Hit>(hits).subspan(begin, end - begin));
+  };
+  double ms = 0.0;
+  if (threads <= 1) {
+    ms = time_ms(repeat, [&] { chunk(0, rays.size()); });
+  } else {
+    tbb::task_arena arena(threads);
+    ms = time_ms(repeat, [&] {
+      arena.execute([&] {
+        tbb::parallel_for(tbb::blocked_range<size_t>(0, rays.size(), 1024),
+                          [&](const tbb::blocked_range<size_t>& r) { chunk(r.begin(), r.end()); });
+      });
+    });
+  }
+  return ms > 0.0 ? static_cast<double>(rays.size()) / (ms * 1000.0) : 0.0;
+}
+
+std::string fmt(const char* f, double v) {
+  char buf[64];
+  std::snprintf(buf, sizeof buf, f, v);
+  return buf;
+}
+
+}  // namespace
+
+int bench_trace(const BenchTraceOptions& options) {
+  if (options.width <= 0 || options.height <= 0 || options.width > 16384 || options.height > 16384)
+    throw Error("bench trace: --width/--height must be in 1..16384");
+  const std::string spec = options.mesh.empty() ? options.scene : options.mesh;
+  Scene scene = load_scene(spec, options.load);
+  if (scene.cameras.empty()) add_default_camera_and_light(scene);
+  const int threads = options.threads > 0 ? options.threads : tbb::info::default_concurrency();
+  const int repeat = std::max(1, options.repeat);
+  const TriangleInput input{scene.positions, scene.indices, {}};
+
+  std::printf("bench trace: %s, %zu triangles, %dx%d rays from camera '%s', %d threads, median of %d\n",
+              spec.c_str(), scene.triangle_count(), options.width, options.height,
+              scene.cameras.front().name.c_str(), threads, repeat);
+
+  // Build: one thread, then all threads.
+  BvhOptions bopt = options.bvh;
+  std::vector<double> b1, bn;
+  BuildInfo info;
+  std::unique_ptr<Tracer> bvh;
+  for (int i = 0; i < repeat; ++i) {
+    bopt.threads = 1;
+    bvh = build_tracer(AccelKind::Bvh, input, bopt, &info);
+    b1.push_back(info.build_ms);
+    bopt.threads = threads;
+    bvh = build_tracer(AccelKind::Bvh, input, bopt, &info);
+    bn.push_back(info.build_ms);
+  }
+  std::printf("specula BVH: %zu nodes, %zu leaves, depth %u, SAH cost %.2f, %.2f MB (%zu bytes), %d bins, max leaf %d\n",
+              info.nodes, info.leaves, info.max_depth, info.sah_cost, static_cast<double>(info.bytes) / 1048576.0,
+              info.bytes, options.bvh.bins, options.bvh.max_leaf_size);
+
+  const std::vector<RaySet> sets = make_ray_sets(scene, *bvh, options.width, options.height);
+
+  bool with_embree = false;
+#ifdef SPECULA_HAVE_EMBREE
+  with_embree = options.embree;
+  std::unique_ptr<Tracer> embree1, embreen;
+  std::vector<double> e1, en;
+  if (with_embree) {
+    for (int i = 0; i < repeat; ++i) {
+      double ms = 0.0;
+      embree1 = std::make_unique<EmbreeTracer>(input, 1, &ms);
+      e1.push_back(ms);
+      embreen = std::make_unique<EmbreeTracer>(input, threads, &ms);
+      en.push_back(ms);
+    }
+  }
+#endif
+
+  // One table: build ms, then Mrays/s per ray kind.
+  std::printf("\n%-10s %9s %8s | %12s %12s", "", "rays", "unit", "specula 1T", ("specula " + std::to_string(threads) + "T").c_str());
+  if (with_embree)
+    std::printf(" | %12s %12s | %9s %9s", "embree 1T", ("embree " + std::to_string(threads) + "T").c_str(), "ours/e 1T",
+                ("ours/e " + std::to_string(threads) + "T").c_str());
+  std::printf("\n");
+  const auto row = [&](const std::string& name, size_t count, const char* unit, double s1, double sn, double em1,
+                       double emn, bool lower_is_better) {
+    std::printf("%-10s %9zu %8s | %12s %12s", name.c_str(), count, unit, fmt("%.2f", s1).c_str(), fmt("%.2f", sn).c_str());
+    if (with_embree) {
+      const auto ratio = [&](double a, double b) {
+        if (a <= 0.0 || b <= 0.0) return std::string("-");
+        return fmt("%.2fx", lower_is_better ? b / a : a / b);
+      };
+      std::printf(" | %12s %12s | %9s %9s", fmt("%.2f", em1).c_str(), fmt("%.2f", emn).c_str(), ratio(s1, em1).c_str(),
+                  ratio(sn, emn).c_str());
+    }
+    std::printf("\n");
+  };
+  double em1 = 0, emn = 0;
+#ifdef SPECULA_HAVE_EMBREE
+  em1 = median(e1);
+  emn = median(en);
+#endif
+  row("build", scene.triangle_count(), "ms", median(b1), median(bn), em1, emn, true);
+  for (const RaySet& set : sets) {
+    const double s1 = trace_mrays(*bvh, set, 1, repeat);
+    const double sn = trace_mrays(*bvh, set, threads, repeat);
+    double x1 = 0, xn = 0;
+#ifdef SPECULA_HAVE_EMBREE
+    if (with_embree) {
+      x1 = trace_mrays(*embree1, set, 1, repeat);
+      xn = trace_mrays(*embreen, set, threads, repeat);
+    }
+#endif
+    row(set.name, set.rays.size(), "Mrays/s", s1, sn, x1, xn, false);
+  }
+  if (with_embree) std::printf("(ratio > 1: specula faster; build ratio = embree ms / specula ms)\n");
+#ifndef SPECULA_HAVE_EMBREE
+  std::printf("(Embree comparison not compiled in: install libembree-dev 3 and reconfigure)\n");
+#endif
+  return 0;
+}
+
+}  // namespace specula::cli

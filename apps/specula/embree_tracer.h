@@ -1,0 +1,40 @@
+// Embree 3 behind specula's Tracer interface, for `specula bench trace` comparisons only
+// (owner: accel). Compiled only when CMake found libembree-dev (SPECULA_HAVE_EMBREE).
+#pragma once
+
+#ifdef SPECULA_HAVE_EMBREE
+
+#include <memory>
+#include <span>
+#include <string>
+
+#include "specula/accel.h"
+#include "specula/tracer.h"
+
+namespace specula::cli {
+
+/// Triangle scene in Embree (RTC_BUILD_QUALITY_MEDIUM, one geometry). Queries use
+/// rtcIntersect1 / rtcOccluded1 per ray, like our single-ray traversal. transmittance() is a
+/// plain occlusion query (0 or 1): Embree sees every triangle as opaque here.
+class EmbreeTracer final : public Tracer {
+ public:
+  /// \p threads: 0 = Embree's default (all hardware threads), else "threads=N".
+  /// \p build_ms receives the rtcCommitScene time.
+  EmbreeTracer(const TriangleInput& input, int threads, double* build_ms = nullptr);
+  ~EmbreeTracer() override;
+  EmbreeTracer(const EmbreeTracer&) = delete;
+  EmbreeTracer& operator=(const EmbreeTracer&) = delete;
+
+  std::string name() const override { return "embree"; }
+  void intersect(std::span<const Ray> rays, std::span<Hit> hits, TraceStats* stats = nullptr) const override;
+  void transmittance(std::span<const Ray> rays, std::span<Vec3> out, TraceStats* stats = nullptr) const override;
+  size_t memory_bytes() const override { return 0; }
+
+ private:
+  struct Impl;
+  std::unique_ptr<Impl> impl_;
+};
+
+}  // namespace specula::cli
+
+#endif  // SPECULA_HAVE_EMBREE

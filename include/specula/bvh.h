@@ -1,0 +1,100 @@
+/// \file bvh.h
+/// Binary bounding volume hierarchy over triangles: binned-SAH build (multi-threaded with TBB),
+/// flat 32-byte nodes, triangles stored in BVH order for the watertight ray/triangle test.
+///
+/// Layout follows Bikker's lecture (seed 004): a node is {min, leftFirst, max, count}; an interior
+/// node has count == 0 and its children at leftFirst and leftFirst + 1 (siblings share one
+/// 64-byte cache line); a leaf has count > 0 triangles starting at leftFirst in BVH order. Node 0
+/// is the root, node 1 is unused padding so that every sibling pair is cache-line aligned.
+///
+/// Most code should go through build_tracer() (accel.h); this header is for tools and tests
+/// that want to look at the tree itself.
+#pragma once
+
+#include <cstddef>
+#include <cstdint>
+#include <new>
+#include <span>
+#include <vector>
+
+#include "specula/accel.h"
+#include "specula/math.h"
+#include "specula/tracer.h"
+
+namespace specula {
+
+/// One 32-byte BVH node (seed 004).
+struct alignas(32) BvhNode {
+  Vec3 min;
+  uint32_t left_first = 0;  ///< interior: index of the left child (right = +1); leaf: first triangle
+  Vec3 max;
+  uint32_t count = 0;  ///< triangles in a leaf; 0 for interior nodes
+
+  bool is_leaf() const { return count > 0; }
+};
+static_assert(sizeof(BvhNode) == 32, "BVH nodes must stay 32 bytes");
+
+/// A triangle as the traversal stores it: the three vertices, BVH order. The watertight test
+/// needs the untransformed vertices (precomputed edges would break watertightness).
+struct BvhTriangle {
+  float v[9];  ///< v0.xyz, v1.xyz, v2.xyz
+
+  Vec3 vertex(int i) const { return {v[3 * i], v[3 * i + 1], v[3 * i + 2]}; }
+};
+
+namespace detail {
+/// Minimal allocator for cache-line aligned arrays (nodes, triangles).
+template <class T, size_t Align = 64>
+struct AlignedAllocator {
+  using value_type = T;
+  AlignedAllocator() = default;
+  template <class U>
+  AlignedAllocator(const AlignedAllocator<U, Align>&) noexcept {}
+  template <class U>
+  struct rebind {
+    using other = AlignedAllocator<U, Align>;
+  };
+  T* allocate(size_t n) { return static_cast<T*>(::operator new(n * sizeof(T), std::align_val_t{Align})); }
+  void deallocate(T* p, size_t) noexcept { ::operator delete(p, std::align_val_t{Align}); }
+  template <class U>
+  bool operator==(const AlignedAllocator<U, Align>&) const noexcept { return true; }
+};
+}  // namespace detail
+
+/// The BVH. Immutable after build; all queries are const and safe to call from many threads.
+class Bvh final : public Tracer {
+ public:
+  /// Binned-SAH build over \p input (see BvhOptions). Throws specula::Error on invalid input.
+  /// Fills \p info (build time, node/leaf counts, depth, SAH cost, bytes) when non-null.
+  static Bvh build(const TriangleInput& input, const BvhOptions& options = {}, BuildInfo* info = nullptr);
+
+  Bvh() = default;
+
+  std::string name() const override { return "bvh"; }
+  void intersect(std::span<const Ray> rays, std::span<Hit> hits, TraceStats* stats = nullptr) const override;
+  void transmittance(std::span<const Ray> rays, std::span<Vec3> out, TraceStats* stats = nullptr) const override;
+  size_t memory_bytes() const override;
+
+  /// Single-ray conveniences (same results as the batched calls).
+  Hit intersect(const Ray& ray) const;
+  bool occluded(const Ray& ray) const;  ///< any triangle crossed in (tmin, tmax), transparent or not
+
+  std::span<const BvhNode> nodes() const { return nodes_; }
+  std::span<const BvhTriangle> triangles() const { return tris_; }
+  /// BVH order -> scene triangle index.
+  std::span<const uint32_t> prim_ids() const { return prim_ids_; }
+  const BuildInfo& build_info() const { return info_; }
+  Aabb bounds() const;
+
+ private:
+  std::vector<BvhNode, detail::AlignedAllocator<BvhNode>> nodes_;
+  std::vector<BvhTriangle, detail::AlignedAllocator<BvhTriangle>> tris_;
+  std::vector<uint32_t> prim_ids_;
+  std::vector<Vec3> transmittance_;  ///< BVH order; empty when every triangle is opaque
+  BuildInfo info_;
+
+  friend class BvhBuilder;
+  friend class BvhTraversal;
+};
+
+}  // namespace specula

@@ -1,0 +1,84 @@
+// Atomic file writing: temporary file in the target folder, fsync, rename (owner: render).
+#include <fcntl.h>
+#include <sys/stat.h>
+#include <unistd.h>
+
+#include <cerrno>
+#include <cstring>
+#include <filesystem>
+#include <string>
+#include <system_error>
+#include <vector>
+
+#include "specula/error.h"
+#include "specula/image.h"
+
+namespace specula {
+
+namespace fs = std::filesystem;
+
+void write_file_atomic(const std::string& path, std::span<const uint8_t> bytes,
+                       const std::string& protect) {
+  if (path.empty()) throw Error("write: empty output path");
+  const fs::path target(path);
+  if (!protect.empty()) {
+    std::error_code ec;
+    if (fs::exists(target, ec) && fs::equivalent(target, fs::path(protect), ec))
+      throw file_error(path, "refusing to overwrite the input file");
+  }
+  std::error_code ec;
+  if (fs::is_directory(target, ec)) throw file_error(path, "is a directory");
+
+  // The temporary file lives in the same folder so rename() is atomic (same file system).
+  const fs::path dir = target.has_parent_path() ? target.parent_path() : fs::path(".");
+  std::string leaf(".");
+  leaf.append(target.filename().string());
+  leaf.append(".tmp-XXXXXX");
+  const std::string tmpl = (dir / leaf).string();
+  std::vector<char> name(tmpl.begin(), tmpl.end());
+  name.push_back('\0');
+  const int fd = ::mkstemp(name.data());
+  if (fd < 0) throw file_error(path, std::string("cannot create a temporary file: ") + std::strerror(errno));
+  const std::string tmp(name.data());
+
+  auto fail = [&](const std::string& what) {
+    const int err = errno;
+    ::close(fd);
+    ::unlink(tmp.c_str());
+    return file_error(path, what + ": " + std::strerror(err));
+  };
+
+  size_t done = 0;
+  while (done < bytes.size()) {
+    const ssize_t n = ::write(fd, bytes.data() + done, bytes.size() - done);
+    if (n < 0) {
+      if (errno == EINTR) continue;
+      throw fail("write failed");
+    }
+    done += static_cast<size_t>(n);
+  }
+  // mkstemp creates 0600: keep the mode of the file being replaced, else use rw-r--r--
+  // (reading the umask would need umask(), which is process-wide and racy).
+  struct stat st {};
+  const mode_t mode = ::stat(path.c_str(), &st) == 0 ? (st.st_mode & 07777) : 0644;
+  ::fchmod(fd, mode);
+  if (::fsync(fd) != 0) throw fail("fsync failed");
+  if (::close(fd) != 0) {
+    const int err = errno;
+    ::unlink(tmp.c_str());
+    throw file_error(path, std::string("close failed: ") + std::strerror(err));
+  }
+  if (::rename(tmp.c_str(), path.c_str()) != 0) {
+    const int err = errno;
+    ::unlink(tmp.c_str());
+    throw file_error(path, std::string("rename failed: ") + std::strerror(err));
+  }
+  // Make the rename itself durable (best effort: some file systems refuse fsync on folders).
+  const int dfd = ::open(dir.c_str(), O_RDONLY | O_DIRECTORY);
+  if (dfd >= 0) {
+    ::fsync(dfd);
+    ::close(dfd);
+  }
+}
+
+}  // namespace specula

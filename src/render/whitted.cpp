@@ -1,0 +1,562 @@
+// The iterative Whitted integrator (owner: render).
+//
+// No recursion: every screen tile keeps a wavefront of path segments {ray, pixel, throughput,
+// reflection depth, refraction depth, medium stack}. One step traces the whole wavefront with
+// one batched Tracer::intersect call, shades every hit (local Blinn-Phong lighting becomes a
+// batch of shadow rays, mirror and refraction rays become the next wavefront) and resolves the
+// shadow batch with one Tracer::transmittance call. Because throughput is multiplicative,
+// each contribution is added straight to its pixel: no backward pass over a ray tree is needed
+// (seed 001 stores the tree and walks it backwards because GLSL has no stacks; here the
+// weights carry the same information forwards).
+//
+// Determinism: a tile is always processed by one thread in the same order, pixels are only
+// written by their tile, light samples are keyed by the pixel's global index, and there is no
+// shared random state. The film is bit-identical for any thread count.
+#include <tbb/enumerable_thread_specific.h>
+#include <tbb/parallel_for.h>
+#include <tbb/task_arena.h>
+
+#include <algorithm>
+#include <atomic>
+#include <cmath>
+#include <cstring>
+#include <string>
+
+#include "render/sky.h"
+#include "specula/error.h"
+#include "specula/render.h"
+#include "specula/timer.h"
+
+namespace specula {
+
+std::vector<Vec3> shadow_transmittance(const Scene& scene) {
+  // Per-material value, then per triangle. A transparent surface lets `transparency` of the
+  // light through, minus what its normal-incidence Fresnel reflectance F0 sends back, tinted
+  // towards its diffuse colour the less transparent it is (so a semi-solid block casts a
+  // coloured, darker shadow and clear glass an almost white one). Opaque surfaces give 0.
+  std::vector<Vec3> per_material(scene.materials.size());
+  for (size_t i = 0; i < scene.materials.size(); ++i) {
+    const Material& m = scene.materials[i];
+    const float tr = std::clamp(m.transparency, 0.0f, 1.0f);
+    if (tr <= 0.0f) continue;
+    const float r0 = (m.ior - 1.0f) / (m.ior + 1.0f);
+    const float f0 = std::clamp(r0 * r0, 0.0f, 1.0f);
+    const float mx = max_component(m.diffuse);
+    const Vec3 colour = mx > 0.0f ? max(m.diffuse / mx, Vec3{0.0f}) : Vec3{1.0f};
+    const Vec3 tint = lerp(Vec3{1.0f}, colour, 1.0f - tr);
+    const Vec3 t = tint * (tr * (1.0f - f0));
+    per_material[i] = min(max(t, Vec3{0.0f}), Vec3{1.0f});
+  }
+  std::vector<Vec3> out(scene.triangle_count());
+  for (size_t t = 0; t < out.size() && t < scene.material_ids.size(); ++t) {
+    const uint32_t id = scene.material_ids[t];
+    if (id < per_material.size()) out[t] = per_material[id];
+  }
+  return out;
+}
+
+namespace {
+
+constexpr int kMaxMedia = 6;          ///< nesting depth of dielectric media tracked per path
+constexpr float kMinWeight = 1e-3f;   ///< paths whose throughput drops below this are pruned
+constexpr int kMaxDepthCap = 64;      ///< sanity cap for max_reflect / max_refract
+constexpr int kMaxDimension = 32768;
+constexpr uint64_t kMaxFilmBytes = uint64_t{4} << 30;  ///< 4 GiB
+
+/// Material ids of the media a path is inside, innermost last.
+struct MediumStack {
+  uint32_t ids[kMaxMedia] = {};
+  int count = 0;
+
+  int top() const { return count > 0 ? static_cast<int>(ids[count - 1]) : -1; }
+  void push(uint32_t id) {
+    if (count < kMaxMedia) {
+      ids[count++] = id;
+    } else {  // too deep: forget the outermost medium rather than the newest one
+      std::memmove(ids, ids + 1, sizeof(uint32_t) * (kMaxMedia - 1));
+      ids[kMaxMedia - 1] = id;
+    }
+  }
+  /// Removes the innermost occurrence of \p id; returns false when the path was not inside it.
+  bool remove(uint32_t id) {
+    for (int i = count - 1; i >= 0; --i)
+      if (ids[i] == id) {
+        for (int j = i; j + 1 < count; ++j) ids[j] = ids[j + 1];
+        --count;
+        return true;
+      }
+    return false;
+  }
+};
+
+struct Segment {
+  Ray ray;
+  Vec3 weight;       ///< throughput from the camera to this segment
+  uint32_t pixel;    ///< index inside the tile
+  uint8_t reflect_depth;
+  uint8_t refract_depth;
+  bool primary;
+  MediumStack media;
+};
+
+struct Scratch {
+  std::vector<Segment> current, next;
+  std::vector<Ray> rays;
+  std::vector<Hit> hits;
+  std::vector<Ray> shadow_rays;
+  std::vector<Vec3> shadow_contrib, shadow_t;
+  std::vector<uint32_t> shadow_pixel;
+  std::vector<Vec3> accum;
+  std::vector<uint64_t> cost;
+};
+
+uint32_t hash_u32(uint32_t x) {
+  // Integer hash (Chris Wellons' "lowbias32"): decorrelates neighbouring pixel indices.
+  x ^= x >> 16;
+  x *= 0x7feb352dU;
+  x ^= x >> 15;
+  x *= 0x846ca68bU;
+  x ^= x >> 16;
+  return x;
+}
+
+float to_unit_float(uint32_t x) { return static_cast<float>(x >> 8) * (1.0f / 16777216.0f); }
+
+/// Everything constant during one render.
+struct Context {
+  const Scene& scene;
+  const Tracer& tracer;
+  int width, height, tile, tiles_x;
+  int max_reflect, max_refract;
+  bool want_depth, want_normal, want_prim, want_cost;
+  Material fallback;
+  Film& film;
+
+  const Material& material(uint32_t prim) const {
+    if (prim < scene.material_ids.size()) {
+      const uint32_t id = scene.material_ids[prim];
+      if (id < scene.materials.size()) return scene.materials[id];
+    }
+    return fallback;
+  }
+  uint32_t material_id(uint32_t prim) const {
+    return prim < scene.material_ids.size() ? scene.material_ids[prim] : 0xFFFFFFFFu;
+  }
+  float medium_ior(int id) const {
+    return (id >= 0 && static_cast<size_t>(id) < scene.materials.size())
+               ? scene.materials[static_cast<size_t>(id)].ior
+               : 1.0f;
+  }
+};
+
+/// Beer-Lambert transmittance over \p dist inside medium \p id (1 outside any medium).
+Vec3 medium_attenuation(const Context& ctx, int id, float dist) {
+  if (id < 0 || static_cast<size_t>(id) >= ctx.scene.materials.size()) return Vec3{1.0f};
+  const Vec3& sigma = ctx.scene.materials[static_cast<size_t>(id)].absorption;
+  Vec3 out{1.0f};
+  for (int c = 0; c < 3; ++c) {
+    if (sigma[c] <= 0.0f) continue;
+    out[c] = std::isfinite(dist) ? std::exp(-sigma[c] * dist) : 0.0f;
+  }
+  return out;
+}
+
+/// Adds the direct lighting of every light at a surface point as shadow-ray requests.
+void shade_lights(const Context& ctx, Scratch& s, const Segment& seg, const Material& m,
+                  float local, const Vec3& p, const Vec3& ng_f, const Vec3& ns_f, const Vec3& view_dir,
+                  uint32_t global_pixel) {
+  const Vec3 kd = m.diffuse * local;
+  const bool has_spec = max_component(m.specular) > 0.0f;
+  if (max_component(kd) <= 0.0f && !has_spec) return;
+  const Vec3 org = offset_ray_origin(p, ng_f);
+
+  auto add_sample = [&](const Vec3& l, const Vec3& irradiance, const Ray& shadow) {
+    // l: unit direction to the light; irradiance: light reaching p (before the cosine).
+    if (dot(l, ng_f) <= 0.0f) return;  // light behind the surface
+    const float cos_l = dot(ns_f, l);
+    if (cos_l <= 0.0f) return;
+    Vec3 f = kd * cos_l;
+    if (has_spec) {
+      const Vec3 h = normalize(l - view_dir);
+      const float nh = std::max(0.0f, dot(ns_f, h));
+      if (nh > 0.0f) f += m.specular * std::pow(nh, m.phong_exponent);
+    }
+    const Vec3 c = seg.weight * f * irradiance;
+    if (max_component(c) <= 0.0f) return;
+    s.shadow_rays.push_back(shadow);
+    s.shadow_contrib.push_back(c);
+    s.shadow_pixel.push_back(seg.pixel);
+  };
+
+  for (const Light& light : ctx.scene.lights) {
+    const Vec3 power = light.color * light.intensity;
+    if (max_component(power) <= 0.0f) continue;
+    if (light.type == LightType::Directional) {
+      const Vec3 l = normalize(-light.direction);
+      if (l == Vec3{}) continue;
+      Ray r;
+      r.org = org;
+      r.dir = l;
+      r.tmin = 0.0f;
+      r.tmax = kInf;
+      add_sample(l, power, r);
+      continue;
+    }
+    const int n = (light.type == LightType::Sphere && light.radius > 0.0f)
+                      ? std::clamp(light.samples, 1, 256)
+                      : 1;
+    if (n == 1 && light.type != LightType::Sphere) {
+      const Vec3 to = light.position - p;
+      const float d2 = dot(to, to);
+      if (!(d2 > 0.0f)) continue;
+      Ray r;
+      r.org = org;
+      r.dir = light.position - org;
+      r.tmin = 0.0f;
+      r.tmax = 1.0f;
+      add_sample(to * (1.0f / std::sqrt(d2)), power / d2, r);
+      continue;
+    }
+    // Sphere light: n points of a Vogel (golden-angle Fibonacci) spiral on the disc the
+    // sphere presents to p, rotated by a per-pixel hash so neighbouring pixels see different
+    // but deterministic patterns. Each sample carries 1/n of the intensity.
+    const Vec3 axis = normalize(light.position - p);
+    Vec3 t, b;
+    orthonormal_basis(axis == Vec3{} ? Vec3{0, 1, 0} : axis, t, b);
+    const float rot = 2.0f * kPi * to_unit_float(hash_u32(global_pixel * 0x9E3779B9u + 0x632BE5ABu));
+    const float golden = kPi * (3.0f - std::sqrt(5.0f));
+    const float inv_n = 1.0f / static_cast<float>(n);
+    for (int k = 0; k < n; ++k) {
+      const float rr = light.radius * std::sqrt((static_cast<float>(k) + 0.5f) * inv_n);
+      const float phi = static_cast<float>(k) * golden + rot;
+      const Vec3 q = light.position + (t * std::cos(phi) + b * std::sin(phi)) * rr;
+      const Vec3 to = q - p;
+      const float d2 = dot(to, to);
+      if (!(d2 > 0.0f)) continue;
+      Ray r;
+      r.org = org;
+      r.dir = q - org;
+      r.tmin = 0.0f;
+      r.tmax = 1.0f;
+      add_sample(to * (1.0f / std::sqrt(d2)), power * (inv_n / d2), r);
+    }
+  }
+}
+
+/// Shades one hit: emission, ambient and lights go to the pixel / shadow batch, mirror and
+/// refraction rays to the next wavefront.
+void shade_hit(const Context& ctx, Scratch& s, const Segment& seg, const Hit& hit,
+               uint32_t global_pixel) {
+  const Scene& scene = ctx.scene;
+  const uint32_t prim = hit.prim;
+  const uint32_t i0 = scene.indices[3 * size_t{prim}], i1 = scene.indices[3 * size_t{prim} + 1],
+                 i2 = scene.indices[3 * size_t{prim} + 2];
+  const float w0 = 1.0f - hit.u - hit.v;
+  // Position from the barycentrics (not org + t dir): it lies on the triangle up to rounding,
+  // which is what offset_ray_origin's error bound assumes.
+  const Vec3 p = scene.positions[i0] * w0 + scene.positions[i1] * hit.u + scene.positions[i2] * hit.v;
+  const Vec3 d = normalize(seg.ray.dir);
+  Vec3 ng = hit.ng;
+  if (!(dot(ng, ng) > 0.0f) || !is_finite(ng))
+    ng = normalize(cross(scene.positions[i1] - scene.positions[i0], scene.positions[i2] - scene.positions[i0]));
+  const bool front = dot(d, ng) < 0.0f;  // arriving on the side the winding faces
+  const Vec3 ng_f = front ? ng : -ng;    // geometric normal facing the incoming ray
+  Vec3 ns = ng_f;
+  if (scene.normals.size() == scene.positions.size()) {
+    const Vec3 n = normalize(scene.normals[i0] * w0 + scene.normals[i1] * hit.u + scene.normals[i2] * hit.v);
+    if (n != Vec3{}) ns = dot(n, ng_f) < 0.0f ? -n : n;
+  }
+  const Vec3& ns_f = ns;
+
+  const Material& m = ctx.material(prim);
+  Vec3& out = s.accum[seg.pixel];
+
+  float refl = std::clamp(m.reflectivity, 0.0f, 1.0f);
+  float trans = std::clamp(m.transparency, 0.0f, 1.0f);
+  if (refl + trans > 1.0f) {
+    const float k = 1.0f / (refl + trans);
+    refl *= k;
+    trans *= k;
+  }
+  const float local = std::max(0.0f, 1.0f - refl - trans);
+
+  // Local shading: emission + ambient + direct light (through the shadow batch).
+  out += seg.weight * (m.emission + scene.ambient * m.diffuse * local);
+  shade_lights(ctx, s, seg, m, local, p, ng_f, ns_f, d, global_pixel);
+
+  // Mirror and dielectric split.
+  float refl_w = refl;
+  float refr_w = 0.0f;
+  Vec3 refr_dir;
+  MediumStack refr_media = seg.media;
+  if (trans > 0.0f) {
+    const uint32_t mid = ctx.material_id(prim);
+    float n1, n2;
+    if (front) {  // entering the medium behind the surface
+      n1 = ctx.medium_ior(seg.media.top());
+      n2 = m.ior;
+      refr_media.push(mid);
+    } else {      // leaving it
+      n1 = m.ior;
+      refr_media.remove(mid);
+      n2 = ctx.medium_ior(refr_media.top());
+    }
+    const float eta = n1 / n2;
+    float fr = fresnel_dielectric(-dot(d, ns_f), eta);
+    bool ok = fr < 1.0f && refract(d, ns_f, eta, refr_dir) && dot(refr_dir, ng_f) < 0.0f;
+    if (!ok && fr < 1.0f) {  // the shading normal bent the ray back: use the geometric one
+      fr = fresnel_dielectric(-dot(d, ng_f), eta);
+      ok = fr < 1.0f && refract(d, ng_f, eta, refr_dir) && dot(refr_dir, ng_f) < 0.0f;
+    }
+    if (!ok) fr = 1.0f;  // total internal reflection
+    refl_w += trans * fr;
+    refr_w = trans * (1.0f - fr);
+  }
+
+  if (refl_w > 0.0f && seg.reflect_depth < ctx.max_reflect) {
+    const Vec3 w = seg.weight * refl_w;
+    if (max_component(w) >= kMinWeight) {
+      Vec3 r = reflect(d, ns_f);
+      if (dot(r, ng_f) <= 0.0f) r = reflect(d, ng_f);  // keep it above the geometric surface
+      Segment c;
+      c.ray.org = offset_ray_origin(p, ng_f);
+      c.ray.dir = normalize(r);
+      c.ray.tmin = 0.0f;
+      c.ray.tmax = kInf;
+      c.weight = w;
+      c.pixel = seg.pixel;
+      c.reflect_depth = static_cast<uint8_t>(seg.reflect_depth + 1);
+      c.refract_depth = seg.refract_depth;
+      c.primary = false;
+      c.media = seg.media;
+      s.next.push_back(c);
+    }
+  }
+  if (refr_w > 0.0f && seg.refract_depth < ctx.max_refract) {
+    const Vec3 w = seg.weight * refr_w;
+    if (max_component(w) >= kMinWeight) {
+      Segment c;
+      c.ray.org = offset_ray_origin(p, -ng_f);
+      c.ray.dir = refr_dir;
+      c.ray.tmin = 0.0f;
+      c.ray.tmax = kInf;
+      c.weight = w;
+      c.pixel = seg.pixel;
+      c.reflect_depth = seg.reflect_depth;
+      c.refract_depth = static_cast<uint8_t>(seg.refract_depth + 1);
+      c.primary = false;
+      c.media = refr_media;
+      s.next.push_back(c);
+    }
+  }
+}
+
+struct TileCounters {
+  uint64_t primary = 0, secondary = 0, shadow = 0;
+};
+
+void render_tile(const Context& ctx, const SkyEval& sky, Scratch& s, const PinholeCamera& camera,
+                 int tile_index, TileCounters& counters) {
+  const int tx = tile_index % ctx.tiles_x, ty = tile_index / ctx.tiles_x;
+  const int x0 = tx * ctx.tile, y0 = ty * ctx.tile;
+  const int x1 = std::min(x0 + ctx.tile, ctx.width), y1 = std::min(y0 + ctx.tile, ctx.height);
+  const int tw = x1 - x0, th = y1 - y0;
+  const size_t npix = static_cast<size_t>(tw) * static_cast<size_t>(th);
+  auto global = [&](uint32_t local_pixel) {
+    const int lx = static_cast<int>(local_pixel) % tw, ly = static_cast<int>(local_pixel) / tw;
+    return static_cast<size_t>(y0 + ly) * static_cast<size_t>(ctx.width) + static_cast<size_t>(x0 + lx);
+  };
+
+  s.accum.assign(npix, Vec3{});
+  if (ctx.want_cost) s.cost.assign(npix, 0);
+  s.current.clear();
+  for (int y = y0; y < y1; ++y)
+    for (int x = x0; x < x1; ++x) {
+      Segment seg;
+      seg.ray = camera.generate(static_cast<float>(x) + 0.5f, static_cast<float>(y) + 0.5f);
+      seg.weight = Vec3{1.0f};
+      seg.pixel = static_cast<uint32_t>((y - y0) * tw + (x - x0));
+      seg.reflect_depth = 0;
+      seg.refract_depth = 0;
+      seg.primary = true;
+      s.current.push_back(seg);
+    }
+  counters.primary += npix;
+
+  while (!s.current.empty()) {
+    const size_t n = s.current.size();
+    s.rays.resize(n);
+    s.hits.assign(n, Hit{});
+    for (size_t i = 0; i < n; ++i) s.rays[i] = s.current[i].ray;
+    if (ctx.want_cost) {
+      // Per-ray queries so the node visits can be charged to their pixel.
+      for (size_t i = 0; i < n; ++i) {
+        TraceStats ts;
+        ctx.tracer.intersect(std::span<const Ray>(&s.rays[i], 1), std::span<Hit>(&s.hits[i], 1), &ts);
+        s.cost[s.current[i].pixel] += ts.nodes_visited;
+      }
+    } else {
+      ctx.tracer.intersect(s.rays, s.hits);
+    }
+
+    s.next.clear();
+    s.shadow_rays.clear();
+    s.shadow_contrib.clear();
+    s.shadow_pixel.clear();
+    for (size_t i = 0; i < n; ++i) {
+      Segment seg = s.current[i];
+      const Hit& hit = s.hits[i];
+      const float dir_len = length(seg.ray.dir);
+      const bool valid = hit.hit() && hit.prim < ctx.scene.triangle_count();
+      const float dist = valid ? hit.t * dir_len : kInf;
+      seg.weight *= medium_attenuation(ctx, seg.media.top(), dist);
+      const size_t gp = global(seg.pixel);
+      if (seg.primary) {
+        if (ctx.want_depth) ctx.film.depth[gp] = dist;
+        if (ctx.want_prim) ctx.film.prim_id[gp] = valid ? hit.prim : kNoHit;
+      }
+      if (!valid) {
+        s.accum[seg.pixel] += seg.weight * sky.radiance(seg.ray.dir);
+        continue;
+      }
+      if (max_component(seg.weight) <= 0.0f) continue;
+      shade_hit(ctx, s, seg, hit, static_cast<uint32_t>(gp));
+      if (seg.primary && ctx.want_normal) {
+        const Scene& sc = ctx.scene;
+        const uint32_t i0 = sc.indices[3 * size_t{hit.prim}], i1 = sc.indices[3 * size_t{hit.prim} + 1],
+                       i2 = sc.indices[3 * size_t{hit.prim} + 2];
+        Vec3 nrm = hit.ng;
+        if (sc.normals.size() == sc.positions.size()) {
+          const Vec3 ni = normalize(sc.normals[i0] * (1.0f - hit.u - hit.v) + sc.normals[i1] * hit.u +
+                                    sc.normals[i2] * hit.v);
+          if (ni != Vec3{}) nrm = ni;
+        }
+        if (dot(nrm, seg.ray.dir) > 0.0f) nrm = -nrm;  // facing the camera
+        ctx.film.normal[gp] = nrm;
+      }
+    }
+
+    const size_t ns = s.shadow_rays.size();
+    if (ns > 0) {
+      s.shadow_t.assign(ns, Vec3{});
+      if (ctx.want_cost) {
+        for (size_t i = 0; i < ns; ++i) {
+          TraceStats ts;
+          ctx.tracer.transmittance(std::span<const Ray>(&s.shadow_rays[i], 1),
+                                   std::span<Vec3>(&s.shadow_t[i], 1), &ts);
+          s.cost[s.shadow_pixel[i]] += ts.nodes_visited;
+        }
+      } else {
+        ctx.tracer.transmittance(s.shadow_rays, s.shadow_t);
+      }
+      for (size_t i = 0; i < ns; ++i) s.accum[s.shadow_pixel[i]] += s.shadow_contrib[i] * s.shadow_t[i];
+      counters.shadow += ns;
+    }
+    counters.secondary += s.next.size();
+    std::swap(s.current, s.next);
+  }
+
+  for (uint32_t i = 0; i < npix; ++i) {
+    const size_t gp = global(i);
+    ctx.film.color[gp] = s.accum[i];
+    if (ctx.want_cost) ctx.film.cost[gp] = static_cast<uint32_t>(std::min<uint64_t>(s.cost[i], 0xFFFFFFFFu));
+  }
+}
+
+}  // namespace
+
+Film render_whitted(const Scene& scene, const Tracer& tracer, const RenderOptions& options,
+                    RenderStats* stats) {
+  const Timer timer;
+  const int w = options.width, h = options.height;
+  if (w <= 0 || h <= 0 || w > kMaxDimension || h > kMaxDimension)
+    throw Error("invalid image size " + std::to_string(w) + "x" + std::to_string(h) +
+                " (each side must be 1.." + std::to_string(kMaxDimension) + ")");
+  uint64_t bytes_per_pixel = sizeof(Vec3);
+  for (Aov a : options.aovs) {
+    switch (a) {
+      case Aov::Depth: bytes_per_pixel += sizeof(float); break;
+      case Aov::Normal: bytes_per_pixel += sizeof(Vec3); break;
+      case Aov::PrimId: bytes_per_pixel += sizeof(uint32_t); break;
+      case Aov::Cost: bytes_per_pixel += sizeof(uint32_t); break;
+    }
+  }
+  const uint64_t pixels = static_cast<uint64_t>(w) * static_cast<uint64_t>(h);
+  if (pixels * bytes_per_pixel > kMaxFilmBytes)
+    throw Error("image size " + std::to_string(w) + "x" + std::to_string(h) + " needs " +
+                std::to_string(pixels * bytes_per_pixel >> 20) + " MiB of film (limit " +
+                std::to_string(kMaxFilmBytes >> 20) + " MiB)");
+
+  // Camera.
+  Camera cam;
+  if (options.camera.empty()) {
+    if (scene.cameras.empty()) throw Error((scene.name.empty() ? "scene" : scene.name) + ": has no camera");
+    cam = scene.cameras.front();
+  } else {
+    const auto idx = scene.find_camera(options.camera);
+    if (!idx) {
+      std::string names;
+      for (const Camera& c : scene.cameras) names += (names.empty() ? "" : ", ") + c.name;
+      throw Error("unknown camera '" + options.camera + "' (available: " +
+                  (names.empty() ? std::string("none") : names) + ")");
+    }
+    cam = scene.cameras[*idx];
+  }
+  if (scene.indices.size() % 3 != 0) throw Error("render: scene index count is not a multiple of 3");
+  for (uint32_t i : scene.indices)
+    if (i >= scene.positions.size()) throw Error("render: scene has a vertex index out of range");
+
+  Film film;
+  film.width = w;
+  film.height = h;
+  film.color.assign(pixels, Vec3{});
+  Context ctx{scene, tracer, w, h, 0, 0, 0, 0, false, false, false, false, Material{}, film};
+  for (Aov a : options.aovs) {
+    switch (a) {
+      case Aov::Depth: ctx.want_depth = true; film.depth.assign(pixels, kInf); break;
+      case Aov::Normal: ctx.want_normal = true; film.normal.assign(pixels, Vec3{}); break;
+      case Aov::PrimId: ctx.want_prim = true; film.prim_id.assign(pixels, kNoHit); break;
+      case Aov::Cost: ctx.want_cost = true; film.cost.assign(pixels, 0); break;
+    }
+  }
+  ctx.tile = std::clamp(options.tile_size > 0 ? options.tile_size : 16, 1, 256);
+  ctx.tiles_x = (w + ctx.tile - 1) / ctx.tile;
+  const int tiles_y = (h + ctx.tile - 1) / ctx.tile;
+  ctx.max_reflect = std::clamp(options.max_reflect, 0, kMaxDepthCap);
+  ctx.max_refract = std::clamp(options.max_refract, 0, kMaxDepthCap);
+
+  const SkyEval sky(scene.sky);
+  const PinholeCamera camera(cam, w, h);
+  const int tiles = ctx.tiles_x * tiles_y;
+  std::atomic<uint64_t> primary{0}, secondary{0}, shadow{0};
+  tbb::enumerable_thread_specific<Scratch> scratch;
+
+  const int threads = options.threads > 0 ? options.threads : tbb::this_task_arena::max_concurrency();
+  tbb::task_arena arena(std::max(1, threads));
+  // Tiles are handed out in chunks so the calling thread can report progress between them.
+  const int chunk = std::max({1, (tiles + 31) / 32, 4 * std::max(1, threads)});
+  arena.execute([&] {
+    for (int begin = 0; begin < tiles; begin += chunk) {
+      const int end = std::min(tiles, begin + chunk);
+      tbb::parallel_for(tbb::blocked_range<int>(begin, end, 1), [&](const tbb::blocked_range<int>& r) {
+        Scratch& s = scratch.local();
+        TileCounters c;
+        for (int t = r.begin(); t != r.end(); ++t) render_tile(ctx, sky, s, camera, t, c);
+        primary += c.primary;
+        secondary += c.secondary;
+        shadow += c.shadow;
+      });
+      if (options.progress) options.progress(static_cast<double>(end) / static_cast<double>(tiles));
+    }
+  });
+
+  if (stats) {
+    stats->primary_rays = primary.load();
+    stats->secondary_rays = secondary.load();
+    stats->shadow_rays = shadow.load();
+    stats->render_ms = timer.ms();
+  }
+  return film;
+}
+
+}  // namespace specula

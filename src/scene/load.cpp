@@ -1,0 +1,259 @@
+// load_scene dispatch, DataPaths and the helpers shared by all loaders (loader_internal.h).
+#include <algorithm>
+#include <cctype>
+#include <cstdio>
+#include <cstdlib>
+#include <fstream>
+#include <iostream>
+#include <sstream>
+#include <system_error>
+
+#include "scene/loader_internal.h"
+#include "specula/error.h"
+#include "specula/load.h"
+
+namespace fs = std::filesystem;
+
+namespace specula {
+
+// ---------------------------------------------------------------------------------------------
+// DataPaths
+
+std::vector<fs::path> DataPaths::search_path() const {
+  std::vector<fs::path> dirs;
+  if (!cli_dir.empty()) dirs.emplace_back(cli_dir);
+  if (const char* env = std::getenv("SPECULA_DATA"); env != nullptr && *env != '\0')
+    dirs.emplace_back(env);
+#ifdef SPECULA_SOURCE_DIR
+  dirs.push_back(fs::path(SPECULA_SOURCE_DIR "/../shared/data/meshes").lexically_normal());
+#endif
+  return dirs;
+}
+
+fs::path DataPaths::find(const std::string& file_name) const {
+  if (file_name.empty()) return {};
+  for (const fs::path& dir : search_path()) {
+    std::error_code ec;
+    const fs::path p = dir / file_name;
+    if (fs::is_regular_file(p, ec)) return p;
+  }
+  return {};
+}
+
+std::string DataPaths::describe() const {
+  std::string out;
+  for (const fs::path& dir : search_path()) {
+    if (!out.empty()) out += ':';
+    out += dir.string();
+  }
+  return out;
+}
+
+// ---------------------------------------------------------------------------------------------
+// load_scene
+
+Scene load_scene(const std::string& spec, const LoadOptions& options) {
+  if (is_builtin_scene(spec)) return make_builtin_scene(spec, options);
+  const fs::path path(spec);
+  const std::string ext = detail::lower_extension(path);
+  if (ext != ".json" && ext != ".gltf" && ext != ".glb" && ext != ".obj" && ext != ".ply") {
+    std::string names;
+    for (const std::string& n : builtin_scene_names()) names += (names.empty() ? "" : ", ") + n;
+    throw file_error(spec, ext.empty() ? "not a built-in scene (" + names +
+                                             ") and has no file extension (.json, .gltf, .glb, "
+                                             ".obj, .ply)"
+                                       : "unknown scene file extension '" + ext +
+                                             "' (expected .json, .gltf, .glb, .obj or .ply)");
+  }
+  std::error_code ec;
+  if (!fs::exists(path, ec)) throw file_error(spec, "file not found");
+  if (ext == ".json") return load_json_scene(path, options);
+  if (ext == ".gltf" || ext == ".glb") return load_gltf(path, options);
+  if (ext == ".obj") return load_obj(path, options);
+  return load_ply(path, options);
+}
+
+// ---------------------------------------------------------------------------------------------
+// Shared loader helpers
+
+namespace detail {
+
+void warn(const LoadOptions& options, const std::string& message) {
+  if (options.warn) {
+    options.warn(message);
+  } else {
+    std::cerr << "warning: " << message << '\n';
+  }
+}
+
+uint64_t checked_file_size(const fs::path& path) {
+  std::error_code ec;
+  const fs::file_status st = fs::status(path, ec);
+  if (ec || !fs::exists(st)) throw file_error(path.string(), "file not found");
+  if (!fs::is_regular_file(st)) throw file_error(path.string(), "not a regular file");
+  const uintmax_t size = fs::file_size(path, ec);
+  if (ec) throw file_error(path.string(), "cannot read file size: " + ec.message());
+  if (size > kMaxFileBytes)
+    throw file_error(path.string(), "file is " + count_str(size) +
+                                        " bytes; files larger than 4 GiB are refused");
+  return size;
+}
+
+std::string read_file(const fs::path& path) {
+  const uint64_t size = checked_file_size(path);
+  std::ifstream in(path, std::ios::binary);
+  if (!in) throw file_error(path.string(), "cannot open file");
+  std::string data(static_cast<size_t>(size), '\0');
+  if (size > 0 && !in.read(data.data(), static_cast<std::streamsize>(size)))
+    throw file_error(path.string(), "read error");
+  return data;
+}
+
+std::string lower_extension(const fs::path& path) {
+  std::string ext = path.extension().string();
+  std::transform(ext.begin(), ext.end(), ext.begin(),
+                 [](unsigned char c) { return static_cast<char>(std::tolower(c)); });
+  return ext;
+}
+
+fs::path confined_path(const fs::path& dir, const std::string& reference, std::string& why) {
+  if (reference.empty()) {
+    why = "empty file reference";
+    return {};
+  }
+  if (reference.find('\0') != std::string::npos) {
+    why = "file reference '" + reference + "' contains a NUL byte";
+    return {};
+  }
+  if (reference.front() == '/' || reference.front() == '\\' || reference.front() == '~') {
+    why = "absolute path '" + reference + "' refused: references must stay inside " +
+          (dir.empty() ? std::string(".") : dir.string());
+    return {};
+  }
+  // "C:\x", "file:..", "http://..": drive letters and URI schemes.
+  const size_t colon = reference.find(':');
+  if (colon != std::string::npos) {
+    why = "'" + reference + "' refused: drive letters and URI schemes are not allowed in file "
+          "references";
+    return {};
+  }
+  std::string normalized = reference;
+  std::replace(normalized.begin(), normalized.end(), '\\', '/');
+  const fs::path rel(normalized);
+  for (const fs::path& part : rel) {
+    if (part == "..") {
+      why = "path '" + reference + "' refused: '..' may not leave " +
+            (dir.empty() ? std::string(".") : dir.string());
+      return {};
+    }
+  }
+  const fs::path full = dir / rel;
+  // Symlinks may still point outside; compare canonical paths when the file exists.
+  std::error_code ec;
+  if (fs::exists(full, ec)) {
+    const fs::path base = fs::weakly_canonical(dir.empty() ? fs::path(".") : dir, ec);
+    const fs::path target = fs::weakly_canonical(full, ec);
+    if (!ec) {
+      const std::string b = base.string(), t = target.string();
+      if (t.size() <= b.size() || t.compare(0, b.size(), b) != 0 ||
+          (b.back() != '/' && t[b.size()] != '/')) {
+        why = "path '" + reference + "' refused: it resolves outside " + base.string();
+        return {};
+      }
+    }
+  }
+  return full;
+}
+
+void append_mesh(Scene& scene, MeshData&& mesh, uint32_t material_id, const Mat4& xf,
+                 size_t& dropped_triangles) {
+  const size_t nv = mesh.positions.size();
+  const size_t nt = mesh.indices.size() / 3;
+  // Transform into world space here (not in add_mesh) so non-finite results are caught too.
+  std::vector<uint8_t> bad(nv, 0);
+  bool any_bad = false;
+  for (size_t i = 0; i < nv; ++i) {
+    const Vec3 p = xf.transform_point(mesh.positions[i]);
+    if (!is_finite(mesh.positions[i]) || !is_finite(p)) {
+      bad[i] = 1;
+      any_bad = true;
+    }
+    mesh.positions[i] = p;
+  }
+  bool normals_ok = mesh.normals.size() == nv && nv > 0;
+  if (normals_ok) {
+    for (Vec3& n : mesh.normals) {
+      const Vec3 w = normalize(xf.transform_normal(n));
+      if (w == Vec3{}) {
+        normals_ok = false;  // zero / non-finite file normal: compute all of this mesh's
+        break;
+      }
+      n = w;
+    }
+  }
+  if (!normals_ok) mesh.normals.clear();
+  const bool per_triangle = mesh.material_ids.size() == nt;
+
+  if (any_bad) {
+    std::vector<uint32_t> kept_indices;
+    std::vector<uint32_t> kept_materials;
+    kept_indices.reserve(mesh.indices.size());
+    for (size_t t = 0; t < nt; ++t) {
+      const uint32_t* tri = &mesh.indices[3 * t];
+      if (bad[tri[0]] || bad[tri[1]] || bad[tri[2]]) {
+        ++dropped_triangles;
+        continue;
+      }
+      kept_indices.insert(kept_indices.end(), tri, tri + 3);
+      if (per_triangle) kept_materials.push_back(mesh.material_ids[t]);
+    }
+    // Remove the unused (and all non-finite) vertices, keeping the order of the rest.
+    std::vector<uint32_t> remap(nv, UINT32_MAX);
+    for (uint32_t idx : kept_indices) remap[idx] = 0;
+    std::vector<Vec3> pos, nrm;
+    for (size_t i = 0; i < nv; ++i) {
+      if (remap[i] == UINT32_MAX) continue;
+      remap[i] = static_cast<uint32_t>(pos.size());
+      pos.push_back(mesh.positions[i]);
+      if (!mesh.normals.empty()) nrm.push_back(mesh.normals[i]);
+    }
+    for (uint32_t& idx : kept_indices) idx = remap[idx];
+    mesh.positions = std::move(pos);
+    mesh.normals = std::move(nrm);
+    mesh.indices = std::move(kept_indices);
+    mesh.material_ids = std::move(kept_materials);
+  }
+  MeshRange& range = scene.add_mesh(std::move(mesh.name), mesh.positions, mesh.indices,
+                                    material_id, mesh.normals, Mat4::identity());
+  if (per_triangle && mesh.material_ids.size() == range.triangle_count) {
+    std::copy(mesh.material_ids.begin(), mesh.material_ids.end(),
+              scene.material_ids.begin() + range.first_triangle);
+  }
+}
+
+void warn_dropped(const LoadOptions& options, const std::string& file, size_t dropped_triangles) {
+  if (dropped_triangles == 0) return;
+  warn(options, file + ": dropped " + count_str(dropped_triangles) + " triangle" +
+                    (dropped_triangles == 1 ? "" : "s") +
+                    " with non-finite (NaN/Inf) vertex coordinates");
+}
+
+void validate_scene(const Scene& scene, const std::string& file) {
+  try {
+    scene.validate();
+  } catch (const Error& e) {
+    throw file_error(file, e.what());
+  }
+}
+
+std::string count_str(uint64_t n) {
+  std::string digits = std::to_string(n), out;
+  for (size_t i = 0; i < digits.size(); ++i) {
+    if (i > 0 && (digits.size() - i) % 3 == 0) out += ',';
+    out += digits[i];
+  }
+  return out;
+}
+
+}  // namespace detail
+}  // namespace specula

@@ -1,0 +1,667 @@
+// BVH tests: API basics, invalid input, tree invariants, transmittance, robustness, and the
+// oracle test against the brute-force tracer on procedural and shipped meshes. Owner: accel.
+#include <gtest/gtest.h>
+
+#include <algorithm>
+#include <atomic>
+#include <cmath>
+#include <limits>
+#include <numeric>
+#include <sstream>
+#include <string>
+#include <vector>
+
+#include <tbb/blocked_range.h>
+#include <tbb/parallel_for.h>
+
+#include "accel/watertight.h"
+#include "accel_test_util.h"
+#include "specula/accel.h"
+#include "specula/bvh.h"
+#include "specula/error.h"
+#include "specula/load.h"
+#include "test_util.h"
+
+namespace specula {
+namespace {
+
+using test::Mesh;
+
+constexpr float kNaN = std::numeric_limits<float>::quiet_NaN();
+
+Ray make_ray(Vec3 org, Vec3 dir, float tmin = 0.0f, float tmax = kInf) {
+  Ray r;
+  r.org = org;
+  r.dir = dir;
+  r.tmin = tmin;
+  r.tmax = tmax;
+  return r;
+}
+
+Hit trace1(const Tracer& t, const Ray& r) {
+  Hit h;
+  t.intersect(std::span<const Ray>(&r, 1), std::span<Hit>(&h, 1));
+  return h;
+}
+
+Vec3 transmit1(const Tracer& t, const Ray& r) {
+  Vec3 v;
+  t.transmittance(std::span<const Ray>(&r, 1), std::span<Vec3>(&v, 1));
+  return v;
+}
+
+std::string describe(const Ray& r) {
+  std::ostringstream os;
+  os.precision(9);
+  os << "org (" << r.org.x << ", " << r.org.y << ", " << r.org.z << ") dir (" << r.dir.x << ", " << r.dir.y << ", "
+     << r.dir.z << ") t [" << r.tmin << ", " << r.tmax << "]";
+  return os.str();
+}
+
+// ---------------------------------------------------------------------------------------------
+// Oracle: BVH against brute force.
+
+/// Traces \p rays through brute force and the BVH (in parallel over ray chunks) and checks:
+/// identical hit/miss; t within 1e-5 relative; same triangle (with identical u, v, ng) unless
+/// the two triangles tie in t; transmittance of the BVH (all opaque) is 0 exactly when a hit
+/// exists in the open interval (tmin, tmax), and equals brute force's on every 8th ray.
+void expect_matches_brute(const TriangleInput& input, const std::vector<Ray>& rays, const std::string& label,
+                          const BvhOptions& options = {}) {
+  const auto bvh = build_tracer(AccelKind::Bvh, input, options);
+  const auto brute = build_tracer(AccelKind::Brute, input);
+  const size_t n = rays.size();
+  std::vector<Hit> hb(n), ha(n), ha_open(n);
+  std::vector<Vec3> ta(n), tb(n, Vec3{-1.0f, -1.0f, -1.0f});
+  // The any-hit check needs the closest hit in the open interval: shrink [tmin, tmax] by an ulp.
+  std::vector<Ray> open = rays;
+  for (Ray& r : open) {
+    r.tmin = std::nextafter(r.tmin, kInf);
+    r.tmax = std::nextafter(r.tmax, -kInf);
+  }
+  tbb::parallel_for(tbb::blocked_range<size_t>(0, n, 128), [&](const tbb::blocked_range<size_t>& range) {
+    const size_t b = range.begin(), len = range.size();
+    const std::span<const Ray> rs = std::span<const Ray>(rays).subspan(b, len);
+    brute->intersect(rs, std::span<Hit>(hb).subspan(b, len));
+    bvh->intersect(rs, std::span<Hit>(ha).subspan(b, len));
+    bvh->intersect(std::span<const Ray>(open).subspan(b, len), std::span<Hit>(ha_open).subspan(b, len));
+    bvh->transmittance(rs, std::span<Vec3>(ta).subspan(b, len));
+    for (size_t i = b; i < b + len; ++i)
+      if (i % 8 == 0) brute->transmittance(std::span<const Ray>(&rays[i], 1), std::span<Vec3>(&tb[i], 1));
+  });
+
+  size_t hit_count = 0, mismatches = 0, ties = 0;
+  std::string first;
+  const auto fail = [&](size_t i, const std::string& what) {
+    if (mismatches++ == 0) first = "ray " + std::to_string(i) + " " + describe(rays[i]) + ": " + what;
+  };
+  for (size_t i = 0; i < n; ++i) {
+    const Hit &b = hb[i], &a = ha[i];
+    if (b.hit() != a.hit()) {
+      fail(i, std::string("brute ") + (b.hit() ? "hits prim " + std::to_string(b.prim) + " at t " + std::to_string(b.t) : "misses") +
+                  ", bvh " + (a.hit() ? "hits prim " + std::to_string(a.prim) + " at t " + std::to_string(a.t) : "misses"));
+      continue;
+    }
+    if (b.hit()) {
+      ++hit_count;
+      const float tol = 1e-5f * std::max(1.0f, std::fabs(b.t));
+      if (!(std::fabs(a.t - b.t) <= tol)) {
+        fail(i, "t differs: brute " + std::to_string(b.t) + " (prim " + std::to_string(b.prim) + "), bvh " +
+                    std::to_string(a.t) + " (prim " + std::to_string(a.prim) + ")");
+        continue;
+      }
+      if (a.prim != b.prim) {
+        // Only a tie may pick another triangle: the BVH's triangle must really be hit at its t.
+        const uint32_t* idx = input.indices.data() + 3 * size_t{a.prim};
+        float v[9];
+        for (int k = 0; k < 3; ++k) {
+          const Vec3& p = input.positions[idx[k]];
+          v[3 * k] = p.x, v[3 * k + 1] = p.y, v[3 * k + 2] = p.z;
+        }
+        accel::TriHit th{};
+        const accel::WatertightRay wr(rays[i]);
+        if (!accel::intersect_watertight(wr, v, rays[i].tmin, rays[i].tmax, th) || th.t != a.t) {
+          fail(i, "different triangle without a tie: brute " + std::to_string(b.prim) + ", bvh " + std::to_string(a.prim));
+          continue;
+        }
+        ++ties;
+      } else if (a.u != b.u || a.v != b.v || !(a.ng == b.ng)) {
+        fail(i, "same triangle, different u/v/ng");
+        continue;
+      }
+      if (!std::isfinite(a.t) || !std::isfinite(a.u) || !std::isfinite(a.v) || !is_finite(a.ng)) {
+        fail(i, "non-finite hit record");
+        continue;
+      }
+    }
+    const bool blocked = ta[i].x == 0.0f && ta[i].y == 0.0f && ta[i].z == 0.0f;
+    const bool unblocked = ta[i].x == 1.0f && ta[i].y == 1.0f && ta[i].z == 1.0f;
+    if (!(blocked || unblocked)) {
+      fail(i, "opaque scene gave a transmittance other than 0 or 1");
+      continue;
+    }
+    if (blocked != ha_open[i].hit()) {
+      fail(i, std::string("transmittance says ") + (blocked ? "blocked" : "clear") + " but closest hit in (tmin, tmax) " +
+                  (ha_open[i].hit() ? "exists" : "does not exist"));
+      continue;
+    }
+    if (i % 8 == 0 && !(tb[i] == ta[i])) {
+      fail(i, "transmittance differs from brute force");
+      continue;
+    }
+  }
+  EXPECT_EQ(mismatches, 0u) << label << ": " << mismatches << " of " << n << " rays differ; first: " << first;
+  // The ray mix must actually exercise both hits and misses.
+  EXPECT_GT(hit_count, n / 20) << label;
+  EXPECT_LT(hit_count, n) << label;
+  ::testing::Test::RecordProperty(label + "_ties", static_cast<int>(ties));
+}
+
+TEST(BvhOracle, ProceduralMeshesMatchBruteForce) {
+  const Mesh sphere = test::make_sphere(24, 48, 1.5f, {0.2f, -0.1f, 0.3f});
+  expect_matches_brute(sphere.input(), test::make_oracle_rays(sphere.bounds(), sphere.positions, 20000, 1), "sphere");
+  const Mesh grid = test::make_grid(32, 0.25f, -4.0f, -4.0f, 0.5f);
+  expect_matches_brute(grid.input(), test::make_oracle_rays(grid.bounds(), grid.positions, 20000, 2), "grid");
+  const Mesh soup = test::make_soup(3000, 3);
+  expect_matches_brute(soup.input(), test::make_oracle_rays(soup.bounds(), soup.positions, 20000, 3), "soup");
+}
+
+TEST(BvhOracle, BuildOptionsDoNotChangeResults) {
+  const Mesh soup = test::make_soup(2000, 7);
+  const std::vector<Ray> rays = test::make_oracle_rays(soup.bounds(), soup.positions, 6000, 8);
+  for (const int bins : {2, 4, 12, 32, 256})
+    for (const int leaf : {1, 4, 16}) {
+      BvhOptions o;
+      o.bins = bins;
+      o.max_leaf_size = leaf;
+      o.threads = leaf == 4 ? 1 : 2;
+      expect_matches_brute(soup.input(), rays, "soup bins " + std::to_string(bins) + " leaf " + std::to_string(leaf), o);
+    }
+  BvhOptions tc;
+  tc.traversal_cost = 8.0f;  // big leaves
+  expect_matches_brute(soup.input(), rays, "soup traversal cost 8", tc);
+}
+
+class BvhOracleMesh : public ::testing::TestWithParam<const char*> {};
+
+TEST_P(BvhOracleMesh, HundredThousandRaysMatchBruteForce) {
+  SPECULA_REQUIRE_MESH(path, GetParam());
+  const Scene scene = load_obj(path);
+  ASSERT_GT(scene.triangle_count(), 0u);
+  const TriangleInput input{scene.positions, scene.indices, {}};
+  const std::vector<Ray> rays = test::make_oracle_rays(scene.bounds(), scene.positions, 100000, 12345);
+  expect_matches_brute(input, rays, GetParam());
+}
+
+INSTANTIATE_TEST_SUITE_P(BvhShared, BvhOracleMesh, ::testing::ValuesIn(test::kSharedMeshes),
+                         [](const ::testing::TestParamInfo<const char*>& param_info) {
+                           std::string s = param_info.param;
+                           s = s.substr(0, s.find('.'));
+                           std::replace(s.begin(), s.end(), '-', '_');
+                           return s;
+                         });
+
+// ---------------------------------------------------------------------------------------------
+// API basics.
+
+TEST(BvhBasics, ParseAccelKind) {
+  EXPECT_EQ(parse_accel_kind("bvh"), AccelKind::Bvh);
+  EXPECT_EQ(parse_accel_kind("brute"), AccelKind::Brute);
+  try {
+    parse_accel_kind("kd-tree");
+    FAIL() << "expected specula::Error";
+  } catch (const Error& e) {
+    EXPECT_NE(std::string(e.what()).find("kd-tree"), std::string::npos) << e.what();
+    EXPECT_NE(std::string(e.what()).find("bvh"), std::string::npos) << e.what();
+    EXPECT_NE(std::string(e.what()).find("brute"), std::string::npos) << e.what();
+  }
+}
+
+TEST(BvhBasics, SingleTriangleHitRecord) {
+  const std::vector<Vec3> p{{-1, -1, 0}, {1, -1, 0}, {0, 1, 0}};
+  const std::vector<uint32_t> idx{0, 1, 2};
+  for (const AccelKind kind : {AccelKind::Bvh, AccelKind::Brute}) {
+    BuildInfo info;
+    const auto t = build_tracer(kind, {p, idx, {}}, {}, &info);
+    EXPECT_EQ(t->name(), kind == AccelKind::Bvh ? "bvh" : "brute");
+    const Hit h = trace1(*t, make_ray({0, 0, 5}, {0, 0, -2}));
+    ASSERT_TRUE(h.hit());
+    EXPECT_EQ(h.prim, 0u);
+    EXPECT_FLOAT_EQ(h.t, 2.5f);  // t in units of |dir|
+    EXPECT_FLOAT_EQ(h.u, 0.25f);
+    EXPECT_FLOAT_EQ(h.v, 0.5f);
+    EXPECT_FLOAT_EQ(h.ng.z, 1.0f);  // winding normal, not flipped towards the ray
+    // Back side: same normal.
+    const Hit back = trace1(*t, make_ray({0, 0, -5}, {0, 0, 1}));
+    ASSERT_TRUE(back.hit());
+    EXPECT_FLOAT_EQ(back.ng.z, 1.0f);
+    // tmax before the triangle, tmin after it.
+    EXPECT_FALSE(trace1(*t, make_ray({0, 0, 5}, {0, 0, -1}, 0.0f, 4.9f)).hit());
+    EXPECT_FALSE(trace1(*t, make_ray({0, 0, 5}, {0, 0, -1}, 5.1f)).hit());
+    EXPECT_FALSE(trace1(*t, make_ray({2, 0, 5}, {0, 0, -1})).hit());
+    EXPECT_GT(info.bytes, 0u);
+    EXPECT_EQ(info.bytes, t->memory_bytes());
+  }
+}
+
+TEST(BvhBasics, PrimIsSceneOrder) {
+  // Triangles along x, in scrambled spatial order; each must report its own scene index.
+  test::Mesh m;
+  const std::vector<int> slots{5, 2, 7, 0, 3, 6, 1, 4, 9, 8};
+  for (size_t i = 0; i < slots.size(); ++i) {
+    const float x = static_cast<float>(slots[i]) * 3.0f;
+    const uint32_t b = static_cast<uint32_t>(m.positions.size());
+    m.positions.insert(m.positions.end(), {{x - 1, -1, 0}, {x + 1, -1, 0}, {x, 1, 0}});
+    m.indices.insert(m.indices.end(), {b, b + 1, b + 2});
+  }
+  BvhOptions o;
+  o.max_leaf_size = 1;
+  const auto t = build_tracer(AccelKind::Bvh, m.input(), o);
+  for (size_t i = 0; i < slots.size(); ++i) {
+    const float x = static_cast<float>(slots[i]) * 3.0f;
+    const Hit h = trace1(*t, make_ray({x, 0, 1}, {0, 0, -1}));
+    ASSERT_TRUE(h.hit());
+    EXPECT_EQ(h.prim, i);
+  }
+}
+
+TEST(BvhBasics, EmptySceneMissesEverything) {
+  for (const AccelKind kind : {AccelKind::Bvh, AccelKind::Brute}) {
+    BuildInfo info;
+    const auto t = build_tracer(kind, TriangleInput{}, {}, &info);
+    const std::vector<Ray> rays{make_ray({0, 0, 0}, {0, 0, 1}), make_ray({1, 2, 3}, {0, 0, 0}),
+                                make_ray({kNaN, 0, 0}, {1, 0, 0})};
+    std::vector<Hit> hits(rays.size());
+    std::vector<Vec3> tr(rays.size());
+    TraceStats stats;
+    t->intersect(rays, hits, &stats);
+    t->transmittance(rays, tr, &stats);
+    for (size_t i = 0; i < rays.size(); ++i) {
+      EXPECT_FALSE(hits[i].hit());
+      EXPECT_EQ(tr[i], Vec3(1.0f));
+    }
+    EXPECT_EQ(stats.rays, 2 * rays.size());
+    if (kind == AccelKind::Bvh) {
+      EXPECT_EQ(info.leaves, 1u);
+      EXPECT_EQ(info.sah_cost, 0.0);
+    }
+  }
+}
+
+void expect_build_error(const TriangleInput& input, const std::string& needle) {
+  for (const AccelKind kind : {AccelKind::Bvh, AccelKind::Brute}) {
+    try {
+      build_tracer(kind, input);
+      ADD_FAILURE() << "expected specula::Error containing '" << needle << "'";
+    } catch (const Error& e) {
+      EXPECT_NE(std::string(e.what()).find(needle), std::string::npos) << e.what();
+    }
+  }
+}
+
+TEST(BvhBasics, InvalidInputThrowsClearErrors) {
+  const std::vector<Vec3> p{{0, 0, 0}, {1, 0, 0}, {0, 1, 0}};
+  const std::vector<uint32_t> out_of_range{0, 1, 3};
+  expect_build_error({p, out_of_range, {}}, "vertex index 3");
+  const std::vector<uint32_t> partial{0, 1};
+  expect_build_error({p, partial, {}}, "multiple of 3");
+  const std::vector<Vec3> nan_p{{0, 0, 0}, {kNaN, 0, 0}, {0, 1, 0}};
+  const std::vector<uint32_t> idx{0, 1, 2};
+  expect_build_error({nan_p, idx, {}}, "non-finite");
+  const std::vector<Vec3> inf_p{{0, 0, 0}, {1, 0, 0}, {0, kInf, 0}};
+  expect_build_error({inf_p, idx, {}}, "non-finite");
+  const std::vector<Vec3> two_tr{{1, 1, 1}, {1, 1, 1}};
+  expect_build_error({p, idx, two_tr}, "transmittance");
+  const std::vector<Vec3> neg_tr{{-1, 0, 0}};
+  expect_build_error({p, idx, neg_tr}, "transmittance");
+  // An unused non-finite vertex is harmless.
+  const std::vector<Vec3> unused_nan{{0, 0, 0}, {1, 0, 0}, {0, 1, 0}, {kNaN, kNaN, kNaN}};
+  EXPECT_NO_THROW(build_tracer(AccelKind::Bvh, {unused_nan, idx, {}}));
+}
+
+// ---------------------------------------------------------------------------------------------
+// Tree invariants.
+
+void check_invariants(const Bvh& bvh, const TriangleInput& input, const BvhOptions& o) {
+  const auto nodes = bvh.nodes();
+  const auto ids = bvh.prim_ids();
+  const size_t all = input.indices.size() / 3;
+  // Zero-area triangles are left out of the structure (they can never be hit).
+  std::vector<int> expected(all, 1);
+  for (size_t i = 0; i < all; ++i) {
+    const Vec3 a = input.positions[input.indices[3 * i]], b = input.positions[input.indices[3 * i + 1]],
+               c = input.positions[input.indices[3 * i + 2]];
+    const float d = dot(cross(b - a, c - a), cross(b - a, c - a));
+    expected[i] = (d > 0.0f && d < kInf) ? 1 : 0;
+  }
+  const size_t n = static_cast<size_t>(std::count(expected.begin(), expected.end(), 1));
+  ASSERT_EQ(ids.size(), n);
+  ASSERT_EQ(bvh.triangles().size(), n);
+  std::vector<int> seen(all, 0);
+  for (const uint32_t id : ids) {
+    ASSERT_LT(id, all);
+    ++seen[id];
+  }
+  EXPECT_EQ(seen, expected) << "prim_ids is not a permutation of the non-degenerate triangles";
+  // Triangles are stored in BVH order.
+  for (size_t i = 0; i < n; ++i)
+    for (int k = 0; k < 3; ++k)
+      ASSERT_EQ(bvh.triangles()[i].vertex(k), input.positions[input.indices[3 * size_t{ids[i]} + static_cast<size_t>(k)]]);
+
+  // Walk the tree from the root: every triangle in exactly one leaf, children inside parents.
+  const auto contains = [](const BvhNode& outer, Vec3 lo, Vec3 hi) {
+    return outer.min.x <= lo.x && outer.min.y <= lo.y && outer.min.z <= lo.z && outer.max.x >= hi.x &&
+           outer.max.y >= hi.y && outer.max.z >= hi.z;
+  };
+  std::vector<int> in_leaf(n, 0);
+  size_t leaves = 0, interior = 0;
+  uint32_t max_depth = 0;
+  double sah = 0.0;
+  const auto half_area = [](const BvhNode& nd) {
+    const Vec3 e = nd.max - nd.min;
+    return double{e.x} * e.y + double{e.y} * e.z + double{e.z} * e.x;
+  };
+  std::vector<std::pair<uint32_t, uint32_t>> stack{{0, 0}};
+  while (!stack.empty()) {
+    const auto [index, depth] = stack.back();
+    stack.pop_back();
+    ASSERT_LT(index, nodes.size());
+    const BvhNode& nd = nodes[index];
+    max_depth = std::max(max_depth, depth);
+    if (nd.is_leaf()) {
+      ++leaves;
+      sah += half_area(nd) * nd.count;
+      EXPECT_LE(nd.count, static_cast<uint32_t>(o.max_leaf_size)) << "leaf " << index;
+      ASSERT_LE(size_t{nd.left_first} + nd.count, n);
+      for (uint32_t i = nd.left_first; i < nd.left_first + nd.count; ++i) {
+        ++in_leaf[i];
+        const BvhTriangle& t = bvh.triangles()[i];
+        for (int k = 0; k < 3; ++k) EXPECT_TRUE(contains(nd, t.vertex(k), t.vertex(k))) << "leaf " << index;
+      }
+    } else {
+      ++interior;
+      sah += half_area(nd) * o.traversal_cost;
+      ASSERT_GE(nd.left_first, 2u);
+      ASSERT_EQ(nd.left_first % 2, 0u) << "sibling pairs must be cache-line aligned";
+      ASSERT_LT(nd.left_first + 1, nodes.size());
+      for (uint32_t c = nd.left_first; c <= nd.left_first + 1; ++c) {
+        EXPECT_TRUE(contains(nd, nodes[c].min, nodes[c].max)) << "child " << c << " of " << index;
+        stack.push_back({c, depth + 1});
+      }
+    }
+  }
+  EXPECT_TRUE(std::all_of(in_leaf.begin(), in_leaf.end(), [](int c) { return c == 1; }));
+  const BuildInfo& info = bvh.build_info();
+  EXPECT_EQ(info.leaves, leaves);
+  EXPECT_EQ(info.nodes, leaves + interior);
+  EXPECT_EQ(info.max_depth, max_depth);
+  EXPECT_LE(max_depth, 100u);
+  if (half_area(nodes[0]) > 0.0) {
+    EXPECT_NEAR(info.sah_cost, sah / half_area(nodes[0]), 1e-6 * info.sah_cost);
+  }
+  EXPECT_EQ(info.bytes, bvh.memory_bytes());
+  EXPECT_GE(info.build_ms, 0.0);
+  // Node 0 bounds every triangle in the structure.
+  for (const BvhTriangle& t : bvh.triangles())
+    for (int k = 0; k < 3; ++k) EXPECT_TRUE(contains(nodes[0], t.vertex(k), t.vertex(k)));
+}
+
+TEST(BvhStructure, InvariantsHoldForProceduralMeshes) {
+  const Mesh soup = test::make_soup(5000, 11);
+  for (const int leaf : {1, 2, 16}) {
+    BvhOptions o;
+    o.max_leaf_size = leaf;
+    const Bvh bvh = Bvh::build(soup.input(), o);
+    check_invariants(bvh, soup.input(), o);
+  }
+  const Mesh sphere = test::make_sphere(40, 80);
+  const Bvh bvh = Bvh::build(sphere.input());
+  check_invariants(bvh, sphere.input(), {});
+}
+
+TEST(BvhStructure, InvariantsAndQualityOnBunny) {
+  SPECULA_REQUIRE_MESH(path, "stanford-bunny.obj");
+  const Scene scene = load_obj(path);
+  const TriangleInput input{scene.positions, scene.indices, {}};
+  BvhOptions o;
+  const Bvh bvh = Bvh::build(input, o);
+  check_invariants(bvh, input, o);
+  const BuildInfo& info = bvh.build_info();
+  // SAH termination must produce small leaves on a dense scan (not one giant leaf, not one
+  // triangle everywhere) and a far better cost than a single leaf (= triangle count).
+  const double tris_per_leaf = static_cast<double>(scene.triangle_count()) / static_cast<double>(info.leaves);
+  EXPECT_GT(tris_per_leaf, 1.0);
+  EXPECT_LT(tris_per_leaf, 6.0);
+  EXPECT_LT(info.sah_cost, 100.0);
+  EXPECT_LT(info.max_depth, 40u);
+}
+
+TEST(BvhStructure, SameTreeForAnyThreadCount) {
+  const Mesh soup = test::make_soup(40000, 5);  // above the task threshold, so tasks really run
+  BvhOptions one, two;
+  one.threads = 1;
+  two.threads = 2;
+  const Bvh a = Bvh::build(soup.input(), one), b = Bvh::build(soup.input(), two);
+  EXPECT_TRUE(std::equal(a.prim_ids().begin(), a.prim_ids().end(), b.prim_ids().begin(), b.prim_ids().end()));
+  EXPECT_EQ(a.build_info().nodes, b.build_info().nodes);
+  EXPECT_EQ(a.build_info().sah_cost, b.build_info().sah_cost);  // summed in tree order: exact
+  EXPECT_EQ(a.build_info().max_depth, b.build_info().max_depth);
+  check_invariants(b, soup.input(), two);
+}
+
+TEST(BvhStructure, CoincidentCentroidsRespectMaxLeafSize) {
+  // 200 copies of one triangle: no SAH split exists; the builder must still honour
+  // max_leaf_size by halving the index range, and every copy stays reachable.
+  test::Mesh m;
+  m.positions = {{0, 0, 0}, {1, 0, 0}, {0, 1, 0}};
+  for (int i = 0; i < 200; ++i) m.indices.insert(m.indices.end(), {0, 1, 2});
+  BvhOptions o;
+  o.max_leaf_size = 4;
+  const Bvh bvh = Bvh::build(m.input(), o);
+  check_invariants(bvh, m.input(), o);
+  const Hit h = bvh.intersect(make_ray({0.25f, 0.25f, 1}, {0, 0, -1}));
+  ASSERT_TRUE(h.hit());
+  EXPECT_FLOAT_EQ(h.t, 1.0f);
+  EXPECT_LT(h.prim, 200u);
+  // Only zero-area triangles: an empty structure, nothing to hit, no crash.
+  test::Mesh points;
+  points.positions = {{0.5f, 0.5f, 0.5f}, {0.6f, 0.6f, 0.6f}};
+  for (int i = 0; i < 50; ++i) points.indices.insert(points.indices.end(), {0, 0, 0, 0, 1, 0});
+  const Bvh pb = Bvh::build(points.input(), o);
+  EXPECT_TRUE(pb.triangles().empty());
+  EXPECT_FALSE(pb.intersect(make_ray({0.5f, 0.5f, 0}, {0, 0, 1})).hit());
+  EXPECT_FALSE(pb.occluded(make_ray({0.55f, 0.55f, 0.55f}, {1, 1, 1})));
+}
+
+TEST(BvhStructure, StatsCountWork) {
+  const Mesh sphere = test::make_sphere(16, 32);
+  const auto t = build_tracer(AccelKind::Bvh, sphere.input());
+  const std::vector<Ray> rays{make_ray({0, 0, 5}, {0, 0, -1}), make_ray({0, 0, 5}, {0, 0, 1})};
+  std::vector<Hit> hits(2);
+  TraceStats stats;
+  t->intersect(rays, hits, &stats);
+  EXPECT_EQ(stats.rays, 2u);
+  EXPECT_GT(stats.nodes_visited, 1u);
+  EXPECT_GT(stats.triangles_tested, 0u);
+  EXPECT_LT(stats.triangles_tested, sphere.triangle_count());
+  TraceStats shadow;
+  std::vector<Vec3> tr(2);
+  t->transmittance(rays, tr, &shadow);
+  EXPECT_EQ(shadow.rays, 2u);
+  EXPECT_GT(shadow.nodes_visited, 0u);
+  // Without stats the results are the same.
+  std::vector<Hit> plain(2);
+  t->intersect(rays, plain);
+  EXPECT_EQ(plain[0].prim, hits[0].prim);
+  EXPECT_EQ(plain[0].t, hits[0].t);
+}
+
+// ---------------------------------------------------------------------------------------------
+// Transmittance.
+
+/// Two parallel quads at z = 0 and z = -1 (triangles 0-1 and 2-3) and an opaque quad at z = -2
+/// (triangles 4-5) covering only x > 0.
+Mesh layered_quads() {
+  Mesh m;
+  const auto quad = [&m](float x0, float x1, float z) {
+    const uint32_t b = static_cast<uint32_t>(m.positions.size());
+    m.positions.insert(m.positions.end(), {{x0, -1, z}, {x1, -1, z}, {x1, 1, z}, {x0, 1, z}});
+    m.indices.insert(m.indices.end(), {b, b + 1, b + 2, b, b + 2, b + 3});
+  };
+  quad(-1, 1, 0);
+  quad(-1, 1, -1);
+  quad(0, 1, -2);
+  return m;
+}
+
+TEST(BvhTransmittance, ProductOfTransparentLayersAndOpaqueBlocks) {
+  const Mesh m = layered_quads();
+  const std::vector<Vec3> tr{{0.5f, 0.8f, 1.0f}, {0.5f, 0.8f, 1.0f}, {0.5f, 0.25f, 0.1f},
+                             {0.5f, 0.25f, 0.1f}, {0, 0, 0},          {0, 0, 0}};
+  for (const AccelKind kind : {AccelKind::Bvh, AccelKind::Brute}) {
+    SCOPED_TRACE(kind == AccelKind::Bvh ? "bvh" : "brute");
+    const auto t = build_tracer(kind, m.input(tr));
+    // x < 0: through both transparent quads only.
+    const Vec3 both = transmit1(*t, make_ray({-0.5f, 0.3f, 1}, {0, 0, -1}));
+    EXPECT_FLOAT_EQ(both.x, 0.25f);
+    EXPECT_FLOAT_EQ(both.y, 0.2f);
+    EXPECT_FLOAT_EQ(both.z, 0.1f);
+    // tmax respected: stops before the second layer (open interval: t = 2 is excluded too).
+    const Vec3 first = transmit1(*t, make_ray({-0.5f, 0.3f, 1}, {0, 0, -1}, 0.0f, 1.5f));
+    EXPECT_EQ(first, Vec3(0.5f, 0.8f, 1.0f));
+    EXPECT_EQ(transmit1(*t, make_ray({-0.5f, 0.3f, 1}, {0, 0, -1}, 0.0f, 0.5f)), Vec3(1.0f));
+    // tmin respected: starts behind the first layer.
+    EXPECT_EQ(transmit1(*t, make_ray({-0.5f, 0.3f, 1}, {0, 0, -1}, 1.5f)), Vec3(0.5f, 0.25f, 0.1f));
+    // x > 0: the opaque quad blocks everything.
+    EXPECT_EQ(transmit1(*t, make_ray({0.5f, 0.3f, 1}, {0, 0, -1})), Vec3(0.0f));
+    EXPECT_EQ(transmit1(*t, make_ray({0.5f, 0.3f, 1}, {0, 0, -1}, 0.0f, 2.5f)), Vec3(1.0f) * Vec3(0.25f, 0.2f, 0.1f));
+    // Missing everything: exactly 1.
+    EXPECT_EQ(transmit1(*t, make_ray({5, 5, 1}, {0, 0, -1})), Vec3(1.0f));
+  }
+  // No transmittance given: everything opaque.
+  const auto opaque = build_tracer(AccelKind::Bvh, m.input());
+  EXPECT_EQ(transmit1(*opaque, make_ray({-0.5f, 0.3f, 1}, {0, 0, -1})), Vec3(0.0f));
+  EXPECT_EQ(transmit1(*opaque, make_ray({-0.5f, 0.3f, 1}, {0, 0, -1}, 0.0f, 0.9f)), Vec3(1.0f));
+}
+
+TEST(BvhTransmittance, ManyLayersMatchBruteForce) {
+  // A stack of 64 tinted layers (two triangles each) plus random opaque blockers.
+  Mesh m;
+  std::vector<Vec3> tr;
+  std::mt19937 rng(9);
+  std::uniform_real_distribution<float> u(0.0f, 1.0f);
+  for (int l = 0; l < 64; ++l) {
+    const float z = -static_cast<float>(l) * 0.1f;
+    const float x0 = -1.0f + u(rng) * 0.5f, x1 = 1.0f - u(rng) * 0.5f;
+    const uint32_t b = static_cast<uint32_t>(m.positions.size());
+    m.positions.insert(m.positions.end(), {{x0, -1, z}, {x1, -1, z}, {x1, 1, z}, {x0, 1, z}});
+    m.indices.insert(m.indices.end(), {b, b + 1, b + 2, b, b + 2, b + 3});
+    const Vec3 t = (l % 13 == 12) ? Vec3{} : Vec3{0.9f + 0.1f * u(rng), 0.95f, 1.0f};
+    tr.insert(tr.end(), {t, t});
+  }
+  const auto bvh = build_tracer(AccelKind::Bvh, m.input(tr));
+  const auto brute = build_tracer(AccelKind::Brute, m.input(tr));
+  std::vector<Ray> rays;
+  for (int i = 0; i < 2000; ++i)
+    rays.push_back(make_ray({u(rng) * 2.4f - 1.2f, u(rng) * 2 - 1, 1}, {u(rng) * 0.2f - 0.1f, 0, -1}, 0.0f, u(rng) * 8.0f));
+  std::vector<Vec3> a(rays.size()), b(rays.size());
+  bvh->transmittance(rays, a);
+  brute->transmittance(rays, b);
+  int partial = 0;
+  for (size_t i = 0; i < rays.size(); ++i) {
+    // Products over the same set of factors; only the multiplication order may differ.
+    EXPECT_NEAR(a[i].x, b[i].x, 1e-5f) << describe(rays[i]);
+    EXPECT_NEAR(a[i].y, b[i].y, 1e-5f) << describe(rays[i]);
+    EXPECT_NEAR(a[i].z, b[i].z, 1e-5f) << describe(rays[i]);
+    partial += a[i].x > 0.0f && a[i].x < 0.99f;
+  }
+  EXPECT_GT(partial, 100);
+}
+
+// ---------------------------------------------------------------------------------------------
+// Robustness.
+
+TEST(BvhRobustness, DegenerateTrianglesAndBadRaysNeverCrashOrNaN) {
+  Mesh m = test::make_soup(500, 21);
+  // Fully degenerate additions: a point and a line.
+  const uint32_t b = static_cast<uint32_t>(m.positions.size());
+  m.positions.insert(m.positions.end(), {{0.5f, 0.5f, 0.5f}, {0.2f, 0.2f, 0.2f}, {0.8f, 0.8f, 0.8f}});
+  m.indices.insert(m.indices.end(), {b, b, b, b + 1, b, b + 2});
+  const std::vector<Ray> bad{
+      make_ray({kNaN, 0, 0}, {1, 0, 0}),  make_ray({0.5f, 0.5f, -1}, {kNaN, kNaN, kNaN}),
+      make_ray({0.5f, 0.5f, -1}, {0, 0, 0}), make_ray({0.5f, 0.5f, -1}, {0, 0, kInf}),
+      make_ray({-kInf, 0.5f, 0.5f}, {1, 0, 0}), make_ray({0.5f, 0.5f, -1}, {0, 0, 1}, 2.0f, 1.0f),
+      make_ray({0.5f, 0.5f, -1}, {0, 0, 1}, kNaN, kNaN), make_ray({0.5f, 0.5f, -1}, {0, 0, 1}, -kInf, kInf),
+      make_ray({0.5f, 0.5f, -1}, {1e-30f, 1e-30f, 1e-30f}), make_ray({0.5f, 0.5f, -1}, {0, 0, 1e30f}),
+      make_ray({0.5f, 0.5f, 0.5f}, {1, 1, 1}),  // through the degenerate point and line
+  };
+  for (const AccelKind kind : {AccelKind::Bvh, AccelKind::Brute}) {
+    const auto t = build_tracer(kind, m.input());
+    std::vector<Hit> hits(bad.size());
+    std::vector<Vec3> tr(bad.size());
+    t->intersect(bad, hits);
+    t->transmittance(bad, tr);
+    for (size_t i = 0; i < bad.size(); ++i) {
+      SCOPED_TRACE(describe(bad[i]));
+      if (hits[i].hit()) {
+        EXPECT_TRUE(std::isfinite(hits[i].t));
+        EXPECT_TRUE(std::isfinite(hits[i].u) && std::isfinite(hits[i].v));
+        EXPECT_TRUE(is_finite(hits[i].ng));
+        EXPECT_NEAR(length(hits[i].ng), 1.0f, 1e-5f);
+      }
+      EXPECT_TRUE(is_finite(tr[i]));
+    }
+    // Rays with NaN parts or an empty interval miss.
+    for (const size_t i : {0u, 1u, 2u, 5u, 6u}) EXPECT_FALSE(hits[i].hit()) << i;
+  }
+}
+
+TEST(BvhRobustness, HitsAreNeverDegenerateTriangles) {
+  Mesh m = test::make_soup(4000, 31);
+  const auto t = build_tracer(AccelKind::Bvh, m.input());
+  const std::vector<Ray> rays = test::make_oracle_rays(m.bounds(), m.positions, 20000, 32);
+  std::vector<Hit> hits(rays.size());
+  t->intersect(rays, hits);
+  for (size_t i = 0; i < rays.size(); ++i) {
+    if (!hits[i].hit()) continue;
+    const uint32_t* idx = m.indices.data() + 3 * size_t{hits[i].prim};
+    const Vec3 c = cross(m.positions[idx[1]] - m.positions[idx[0]], m.positions[idx[2]] - m.positions[idx[0]]);
+    ASSERT_GT(length(c), 0.0f) << "ray " << i << " hit a zero-area triangle";
+    ASSERT_NEAR(length(hits[i].ng), 1.0f, 1e-5f);
+    ASSERT_GE(hits[i].u, 0.0f);
+    ASSERT_GE(hits[i].v, 0.0f);
+    ASSERT_LE(hits[i].u + hits[i].v, 1.0f + 1e-5f);
+  }
+}
+
+TEST(BvhRobustness, SingleRayHelpersMatchBatch) {
+  const Mesh sphere = test::make_sphere(12, 24);
+  const Bvh bvh = Bvh::build(sphere.input());
+  const std::vector<Ray> rays = test::make_oracle_rays(sphere.bounds(), sphere.positions, 500, 4);
+  std::vector<Hit> hits(rays.size());
+  std::vector<Vec3> tr(rays.size());
+  bvh.intersect(rays, hits);
+  bvh.transmittance(rays, tr);
+  for (size_t i = 0; i < rays.size(); ++i) {
+    const Hit h = bvh.intersect(rays[i]);
+    EXPECT_EQ(h.prim, hits[i].prim);
+    EXPECT_EQ(h.t, hits[i].t);
+    EXPECT_EQ(bvh.occluded(rays[i]), tr[i].x == 0.0f);
+  }
+  EXPECT_EQ(bvh.bounds().min, sphere.bounds().min);
+  EXPECT_EQ(bvh.bounds().max, sphere.bounds().max);
+}
+
+TEST(BvhRobustness, SpanSizeMismatchThrows) {
+  const Mesh sphere = test::make_sphere(4, 8);
+  for (const AccelKind kind : {AccelKind::Bvh, AccelKind::Brute}) {
+    const auto t = build_tracer(kind, sphere.input());
+    const std::vector<Ray> rays(3);
+    std::vector<Hit> hits(2);
+    std::vector<Vec3> tr(1);
+    EXPECT_THROW(t->intersect(rays, hits), Error);
+    EXPECT_THROW(t->transmittance(rays, tr), Error);
+  }
+}
+
+}  // namespace
+}  // namespace specula
