@@ -55,7 +55,7 @@ TEST(Builtin, NamesAndUnknownNameError) {
   }
 }
 
-TEST(Builtin, EveryScenIsValidAndHasCamerasAndLights) {
+TEST(Builtin, EverySceneIsValidAndHasCamerasAndLights) {
   std::vector<std::string> warnings;
   for (const auto& n : builtin_scene_names()) {
     const Scene s = make_builtin_scene(n, quiet(&warnings));

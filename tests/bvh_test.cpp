@@ -443,6 +443,11 @@ TEST(BvhStructure, SameTreeForAnyThreadCount) {
   const Bvh a = Bvh::build(soup.input(), one), b = Bvh::build(soup.input(), two);
   EXPECT_TRUE(std::equal(a.prim_ids().begin(), a.prim_ids().end(), b.prim_ids().begin(), b.prim_ids().end()));
   EXPECT_EQ(a.build_info().nodes, b.build_info().nodes);
+  ASSERT_EQ(a.nodes().size(), b.nodes().size());
+  for (size_t i = 0; i < a.nodes().size(); ++i) {
+    const BvhNode &x = a.nodes()[i], &y = b.nodes()[i];
+    ASSERT_TRUE(x.min == y.min && x.max == y.max && x.left_first == y.left_first && x.count == y.count) << "node " << i;
+  }
   EXPECT_EQ(a.build_info().sah_cost, b.build_info().sah_cost);  // summed in tree order: exact
   EXPECT_EQ(a.build_info().max_depth, b.build_info().max_depth);
   check_invariants(b, soup.input(), two);

@@ -148,6 +148,11 @@ TEST(AtomicWrite, MissingOrNonDirectoryFolderThrowsWithoutTempFiles) {
   EXPECT_THROW(write_file_atomic((dir / "plainfile" / "out.png").string(), bytes), Error);
   EXPECT_THROW(write_file_atomic(dir.string(), bytes), Error);  // a directory as target
   EXPECT_TRUE(temp_leftovers(dir).empty());
+  // A folder nobody may create files in, not even root.
+  if (fs::is_directory("/proc")) {
+    EXPECT_THROW(write_file_atomic("/proc/specula-atomic-test.png", bytes), Error);
+    EXPECT_TRUE(temp_leftovers("/proc").empty());
+  }
 }
 
 TEST(AtomicWrite, UnwritableFolderThrowsAndLeavesNothing) {
@@ -279,4 +284,31 @@ TEST(Sky, EquirectangularImageIsSampledByDirection) {
   missing.type = SkyType::Image;
   missing.image_path = (dir / "nope.hdr").string();
   EXPECT_THROW(load_sky_image(missing), Error);
+}
+
+TEST(Sky, RadianceHdrLoadsLinear) {
+  // A 4x2 uncompressed Radiance file: top row (2, 0, 0), bottom row (0, 0.5, 0).
+  const auto dir = test::temp_dir("hdr");
+  const fs::path p = dir / "sky.hdr";
+  {
+    std::ofstream out(p, std::ios::binary);
+    out << "#?RADIANCE\nFORMAT=32-bit_rle_rgbe\n\n-Y 2 +X 4\n";
+    // RGBE: value = byte * 2^(E - 136). 2.0 = 128 * 2^(130-136); 0.5 = 128 * 2^(128-136).
+    for (int i = 0; i < 4; ++i) out.write("\x80\x00\x00\x82", 4);
+    for (int i = 0; i < 4; ++i) out.write("\x00\x80\x00\x80", 4);
+  }
+  Sky sky;
+  sky.type = SkyType::Image;
+  sky.image_path = p.string();
+  load_sky_image(sky);
+  ASSERT_EQ(sky.image_width, 4);
+  ASSERT_EQ(sky.image_height, 2);
+  EXPECT_NEAR(sky.image[0].x, 2.0f, 1e-5f);
+  EXPECT_NEAR(sky.image[4].y, 0.5f, 1e-5f);
+  EXPECT_NEAR(sky.image[4].x, 0.0f, 1e-5f);
+  // Not an image sky: nothing happens.
+  Sky gradient;
+  gradient.image_path = p.string();
+  load_sky_image(gradient);
+  EXPECT_TRUE(gradient.image.empty());
 }

@@ -59,7 +59,7 @@ TEST_P(LoadBroken, ThrowsErrorNamingTheFile) {
   }
 }
 
-INSTANTIATE_TEST_SUITE_P(Corpus, LoadBroken, ::testing::ValuesIn(broken_files()),
+INSTANTIATE_TEST_SUITE_P(LoadCorpus, LoadBroken, ::testing::ValuesIn(broken_files()),
                          [](const ::testing::TestParamInfo<std::string>& param_info) {
                            std::string n = param_info.param;
                            for (char& c : n)
@@ -155,7 +155,7 @@ TEST(LoadFuzz, MutatedSamplesLoadOrThrowSpeculaError) {
       {"cube_be.ply", "cube_be.ply"}, {"cube_embedded.gltf", "cube_embedded.gltf"},
       {"cube_external.gltf", "cube_external.gltf"}, {"cube_external.bin", "cube_external.gltf"},
       {"cube.glb", "cube.glb"},     {"scene.json", "scene.json"}};
-  const int iterations = std::getenv("SPECULA_FUZZ_ITERATIONS") ? std::atoi(std::getenv("SPECULA_FUZZ_ITERATIONS")) : 150;
+  const int iterations = std::getenv("SPECULA_FUZZ_ITERATIONS") ? std::atoi(std::getenv("SPECULA_FUZZ_ITERATIONS")) : 100;
   std::mt19937 rng(20261122);
   size_t loaded = 0, refused = 0;
   const char* interesting[] = {"0", "-1", "255", "65535", "4294967295", "99999999999999999999",

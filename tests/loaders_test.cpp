@@ -322,7 +322,7 @@ TEST(ObjLoader, MissingMtlWarnsButLoads) {
 
 TEST(LoadNaN, TrianglesWithNonFiniteVerticesAreDroppedWithOneWarning) {
   const fs::path d = test::temp_dir("nan");
-  write_text(d / "n.obj", "v 0 0 0\nv 1 0 0\nv 0 1 0\nv 1e999 0 0\nv 0 -1e999 0\n"
+  write_text(d / "n.obj", "v 0 0 0 # banana\nv 1 0 0\nv 0 1 0\nv nan 0 0\nv 0 -1e999 0\n"
                           "f 1 2 3\nf 1 2 4\nf 4 5 1\nf 3 2 1\n");
   std::vector<std::string> w;
   const Scene s = load_obj(d / "n.obj", quiet(&w));

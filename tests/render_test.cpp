@@ -337,15 +337,13 @@ TEST(Render, SphereLightCastsSoftShadowEdges) {
 
 namespace {
 
-Film render_scene(const Scene& s, int threads, int tile = 16, std::vector<Aov> aovs = {}) {
-  const auto tracer = make_tracer(s);
+Film render_scene(const Scene& s, const Tracer& tracer, int threads, int tile = 16) {
   RenderOptions o;
   o.width = 96;
   o.height = 72;
   o.threads = threads;
   o.tile_size = tile;
-  o.aovs = std::move(aovs);
-  return render_whitted(s, *tracer, o);
+  return render_whitted(s, tracer, o);
 }
 
 }  // namespace
@@ -353,9 +351,10 @@ Film render_scene(const Scene& s, int threads, int tile = 16, std::vector<Aov> a
 TEST(Render, BitIdenticalForAnyThreadCountAndTileSize) {
   for (const char* name : {"glassbox", "cornell"}) {
     const Scene s = make_builtin_scene(name);
-    const Film a = render_scene(s, 1);
-    const Film b = render_scene(s, 2);
-    const Film c = render_scene(s, 2, 7);
+    const auto tracer = make_tracer(s);  // one structure: this tests the integrator
+    const Film a = render_scene(s, *tracer, 1);
+    const Film b = render_scene(s, *tracer, 2);
+    const Film c = render_scene(s, *tracer, 2, 7);
     ASSERT_EQ(a.color.size(), b.color.size());
     EXPECT_EQ(std::memcmp(a.color.data(), b.color.data(), a.color.size() * sizeof(Vec3)), 0)
         << name << ": threads 1 vs 2";

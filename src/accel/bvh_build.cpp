@@ -10,7 +10,8 @@
 // the winning bin sweep; child centroid bounds are accumulated during the partition.
 //
 // Subtrees above a size threshold are built as TBB tasks; node pairs are allocated with an
-// atomic counter. The tree's shape does not depend on the thread count (only node numbering may).
+// atomic counter and renumbered depth-first afterwards, so the result (nodes, triangle order)
+// is identical for any thread count.
 #include <emmintrin.h>  // SSE2: part of the x86-64 baseline, no -march needed
 
 #include <algorithm>
@@ -89,6 +90,15 @@ struct Box4 {
   }
 };
 
+/// Half surface area of a non-empty box, all in registers (the sweeps call this ~2 x bins x 3
+/// times per node, which is most of the build time on small nodes).
+inline float half_area4(__m128 lo, __m128 hi) {
+  const __m128 e = _mm_sub_ps(hi, lo);
+  const __m128 p = _mm_mul_ps(e, _mm_shuffle_ps(e, e, _MM_SHUFFLE(3, 0, 2, 1)));  // ex*ey, ey*ez, ez*ex
+  const __m128 s = _mm_add_ss(p, _mm_shuffle_ps(p, p, _MM_SHUFFLE(1, 1, 1, 1)));
+  return _mm_cvtss_f32(_mm_add_ss(s, _mm_movehl_ps(p, p)));
+}
+
 struct Bin {
   RawBox box;
   uint32_t count;
@@ -108,6 +118,7 @@ struct Split {
   Box4 left, right;
   uint32_t left_count = 0;
   float bin_min = 0.0f, bin_scale = 0.0f;  ///< binning parameters of the chosen axis
+  int bin_count = 0;
 };
 
 }  // namespace
@@ -153,7 +164,10 @@ class BvhBuilder {
     alignas(16) float cmin[4], cext[4], scale[4];
     _mm_store_ps(cmin, cbounds.lo);
     _mm_store_ps(cext, _mm_sub_ps(cbounds.hi, cbounds.lo));
-    const float fbins = static_cast<float>(bins_);
+    // Small nodes need fewer bins (n + 1 candidate planes cannot beat n - 1 well-placed ones
+    // by much) and the sweeps dominate the build time there.
+    const int nb = std::min(bins_, std::max(4, static_cast<int>(count)));
+    const float fbins = static_cast<float>(nb);
     for (int a = 0; a < 3; ++a) scale[a] = cext[a] > 0.0f ? fbins / cext[a] : 0.0f;
     scale[3] = 0.0f;
     const __m128 vmin = cbounds.lo, vscale = _mm_load_ps(scale);
@@ -162,7 +176,7 @@ class BvhBuilder {
     Bin bins[3][kMaxBins];
     const __m128 empty_lo = _mm_set1_ps(kInf), empty_hi = _mm_set1_ps(-kInf);
     for (int a = 0; a < 3; ++a)
-      for (int i = 0; i < bins_; ++i) bins[a][i] = {{empty_lo, empty_hi}, 0};
+      for (int i = 0; i < nb; ++i) bins[a][i] = {{empty_lo, empty_hi}, 0};
     const PrimRef* refs = refs_ + first;
     for (uint32_t i = 0; i < count; ++i) {
       const __m128 lo = _mm_load_ps(refs[i].lo), hi = _mm_load_ps(refs[i].hi);
@@ -187,21 +201,21 @@ class BvhBuilder {
       // Right-to-left sweep: bounds and counts of bins [i, bins).
       Box4 acc;
       uint32_t n = 0;
-      for (int i = bins_ - 1; i > 0; --i) {
+      for (int i = nb - 1; i > 0; --i) {
         acc.grow(bins[a][i].box);
         n += bins[a][i].count;
         right_box[i] = {acc.lo, acc.hi};
-        right_area[i] = acc.half_area();
+        right_area[i] = half_area4(acc.lo, acc.hi);
         right_count[i] = n;
       }
       // Left-to-right sweep; candidate plane between bin i - 1 and bin i.
       Box4 lacc;
       uint32_t ln = 0;
-      for (int i = 1; i < bins_; ++i) {
+      for (int i = 1; i < nb; ++i) {
         lacc.grow(bins[a][i - 1].box);
         ln += bins[a][i - 1].count;
         if (ln == 0 || right_count[i] == 0) continue;
-        const float cost = lacc.half_area() * static_cast<float>(ln) +
+        const float cost = half_area4(lacc.lo, lacc.hi) * static_cast<float>(ln) +
                            right_area[i] * static_cast<float>(right_count[i]);
         if (cost < best.cost) {
           best.cost = cost;
@@ -216,6 +230,7 @@ class BvhBuilder {
     if (best.axis >= 0) {
       best.bin_min = cmin[best.axis];
       best.bin_scale = scale[best.axis];
+      best.bin_count = nb;
     }
     return best;
   }
@@ -232,7 +247,22 @@ class BvhBuilder {
     uint32_t mid = 0;
     Box4 lbox, rbox, lcb, rcb;
     bool split_found = false;
-    if (depth < kMedianDepth) {
+    if (count == 2) {
+      // Every binned split of two primitives puts one on each side, so its cost is known
+      // without binning (a quarter of all nodes; binning them dominated the build time).
+      const PrimRef &p0 = refs_[first], &p1 = refs_[first + 1];
+      lbox.grow(_mm_load_ps(p0.lo), _mm_load_ps(p0.hi));
+      rbox.grow(_mm_load_ps(p1.lo), _mm_load_ps(p1.hi));
+      const float area = bounds.half_area();
+      const float split_cost =
+          traversal_cost_ + (area > 0.0f ? (lbox.half_area() + rbox.half_area()) / area : 2.0f);
+      if (!(split_cost < 2.0f) && max_leaf_ >= 2) {
+        make_leaf(node, first, count);
+        return;
+      }
+      mid = first + 1;
+      split_found = true;
+    } else if (depth < kMedianDepth) {
       const Split split = find_split(first, count, cbounds);
       if (split.axis >= 0) {
         const float leaf_cost = static_cast<float>(count);
@@ -288,7 +318,7 @@ class BvhBuilder {
   uint32_t partition(uint32_t first, uint32_t count, const Split& split, Box4& lcb, Box4& rcb) const {
     const int axis = split.axis;
     const float bmin = split.bin_min, bscale = split.bin_scale;
-    const float maxbin = static_cast<float>(bins_) - 1.0f;
+    const float maxbin = static_cast<float>(split.bin_count) - 1.0f;
     uint32_t i = first, j = first + count;  // [i, j) not yet classified
     while (i < j) {
       PrimRef& r = refs_[i];
@@ -400,7 +430,30 @@ Bvh Bvh::build(const TriangleInput& input, const BvhOptions& options, BuildInfo*
     BvhBuilder builder(options, refs, nodes.get());
     builder.build_root(valid, root.box, root.cbox, parallel && valid > kTaskThreshold);
     const uint32_t used = builder.node_count();
-    bvh.nodes_.assign(nodes.get(), nodes.get() + used);
+    if (!parallel || valid <= kTaskThreshold) {
+      bvh.nodes_.assign(nodes.get(), nodes.get() + used);
+    } else {
+      // Tasks allocated node pairs in whatever order they ran: renumber depth-first (left
+      // subtree first), which is exactly the single-threaded layout, so the node array is
+      // identical for any thread count and subtrees are contiguous in memory.
+      bvh.nodes_.resize(used);
+      bvh.nodes_[0] = nodes[0];
+      uint32_t next = 2;
+      std::vector<std::pair<uint32_t, uint32_t>> todo{{0u, 0u}};  // (old index, new index)
+      while (!todo.empty()) {
+        const auto [old_index, new_index] = todo.back();
+        todo.pop_back();
+        const BvhNode& src = nodes[old_index];
+        if (src.is_leaf()) continue;
+        const uint32_t left = next;
+        next += 2;
+        bvh.nodes_[new_index].left_first = left;
+        bvh.nodes_[left] = nodes[src.left_first];
+        bvh.nodes_[left + 1] = nodes[src.left_first + 1];
+        todo.push_back({src.left_first + 1, left + 1});
+        todo.push_back({src.left_first, left});
+      }
+    }
     bvh.nodes_[1] = BvhNode{};
     if (valid == 0) bvh.nodes_[0] = BvhNode{};
 

@@ -61,7 +61,7 @@ constexpr int kMaxMedia = 6;          ///< nesting depth of dielectric media tra
 constexpr float kMinWeight = 1e-3f;   ///< paths whose throughput drops below this are pruned
 constexpr int kMaxDepthCap = 64;      ///< sanity cap for max_reflect / max_refract
 constexpr int kMaxDimension = 32768;
-constexpr uint64_t kMaxFilmBytes = uint64_t{4} << 30;  ///< 4 GiB
+constexpr uint64_t kMaxFilmBytes = uint64_t{2} << 30;  ///< 2 GiB of film planes
 
 /// Material ids of the media a path is inside, innermost last.
 struct MediumStack {

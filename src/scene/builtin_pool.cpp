@@ -71,7 +71,6 @@ Scene make_pool_with_bunny(const LoadOptions& options, const std::filesystem::pa
   tile_a.diffuse = {0.78f, 0.88f, 0.92f};
   tile_a.specular = {0.25f, 0.25f, 0.25f};
   tile_a.phong_exponent = 60.0f;
-  tile_a.reflectivity = 0.04f;
   Material tile_b = tile_a;
   tile_b.name = "pool_tile_blue";
   tile_b.diffuse = {0.12f, 0.42f, 0.62f};

@@ -31,7 +31,8 @@ std::vector<fs::path> DataPaths::search_path() const {
 }
 
 fs::path DataPaths::find(const std::string& file_name) const {
-  if (file_name.empty()) return {};
+  // Only plain relative names: an absolute name would ignore the folder it is joined to.
+  if (file_name.empty() || fs::path(file_name).is_absolute()) return {};
   for (const fs::path& dir : search_path()) {
     std::error_code ec;
     const fs::path p = dir / file_name;

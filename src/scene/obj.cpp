@@ -24,7 +24,9 @@
 // schemes and '..' components are errors; a missing MTL is a warning (default material).
 #include <algorithm>
 #include <cmath>
+#include <cctype>
 #include <fstream>
+#include <limits>
 #include <map>
 #include <sstream>
 #include <unordered_map>
@@ -146,13 +148,43 @@ std::string summarize(const std::string& text, size_t max_lines) {
   return out;
 }
 
+/// Indices of the "v" lines that contain a nan / inf token (tinyobjloader turns those into 0).
+std::vector<size_t> non_finite_vertices(const std::string& text) {
+  std::vector<size_t> out;
+  size_t vertex = 0;
+  size_t pos = 0;
+  while (pos < text.size()) {
+    size_t end = text.find('\n', pos);
+    if (end == std::string::npos) end = text.size();
+    size_t i = pos;
+    while (i < end && (text[i] == ' ' || text[i] == '\t')) ++i;
+    if (i + 1 < end && text[i] == 'v' && (text[i + 1] == ' ' || text[i + 1] == '\t')) {
+      bool bad = false;
+      // Ignore trailing comments ("# banana"); search this line only.
+      const size_t stop = static_cast<size_t>(
+          std::find(text.begin() + static_cast<std::ptrdiff_t>(i), text.begin() + static_cast<std::ptrdiff_t>(end), '#') -
+          text.begin());
+      for (size_t k = i + 2; k + 2 < stop && !bad; ++k) {
+        const char a = static_cast<char>(std::tolower(static_cast<unsigned char>(text[k])));
+        const char b = static_cast<char>(std::tolower(static_cast<unsigned char>(text[k + 1])));
+        const char c = static_cast<char>(std::tolower(static_cast<unsigned char>(text[k + 2])));
+        bad = (a == 'n' && b == 'a' && c == 'n') || (a == 'i' && b == 'n' && c == 'f');
+      }
+      if (bad) out.push_back(vertex);
+      ++vertex;
+    }
+    pos = end + 1;
+  }
+  return out;
+}
+
 }  // namespace
 
 Scene load_obj(const fs::path& path, const LoadOptions& options) {
   const std::string file = path.string();
-  detail::checked_file_size(path);
-  std::ifstream in(path, std::ios::binary);
-  if (!in) throw file_error(file, "cannot open file");
+  std::string text = detail::read_file(path);
+  const std::vector<size_t> non_finite = non_finite_vertices(text);
+  std::istringstream in(std::move(text));  // C++20: no copy
 
   ConfinedMaterialReader reader(path.parent_path());
   tinyobj::attrib_t attrib;
@@ -183,6 +215,9 @@ Scene load_obj(const fs::path& path, const LoadOptions& options) {
   };
 
   const size_t num_positions = attrib.vertices.size() / 3;
+  // tinyobjloader reads "nan" / "inf" as 0; restore them so those triangles get dropped.
+  for (size_t v : non_finite)
+    if (v < num_positions) attrib.vertices[3 * v] = std::numeric_limits<tinyobj::real_t>::quiet_NaN();
   const size_t num_normals = attrib.normals.size() / 3;
   size_t dropped = 0;
   size_t face_base = 0;  // global face number for messages

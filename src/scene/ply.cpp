@@ -220,13 +220,14 @@ class PlyReader {
       uint64_t per = 0;
       for (const Property& p : e.props)
         per += format_ == Format::Ascii ? 2 : type_size(p.is_list ? p.count_type : p.type);
+      const uint64_t slack = format_ == Format::Ascii ? 1 : 0;  // see read_count
       if (e.count > 0) {
-        if (per > 0 && e.count > (available + 1) / per)
+        if (per > 0 && e.count > (available + slack) / per)
           fail("element '" + e.name + "' claims " + detail::count_str(e.count) +
                " entries, more than the " + detail::count_str(available) +
                " bytes after the header can hold");
         needed += e.count * per;
-        if (needed > available + 1)
+        if (needed > available + slack)
           fail("element '" + e.name + "': the declared element counts need at least " +
                detail::count_str(needed) + " bytes but only " + detail::count_str(available) +
                " follow the header");
@@ -262,7 +263,8 @@ class PlyReader {
   double read_value(Type t, const Element& e, uint64_t i) {
     if (format_ == Format::Ascii) return read_ascii(t, e, i);
     const size_t n = type_size(t);
-    if (data_.size() - cur_ < n) fail(where(e, i) + "unexpected end of file (truncated data)");
+    if (cur_ > data_.size() || data_.size() - cur_ < n)
+      fail(where(e, i) + "unexpected end of file (truncated data)");
     unsigned char b[8];
     std::memcpy(b, data_.data() + cur_, n);
     cur_ += n;
@@ -317,8 +319,11 @@ class PlyReader {
     if (!(c >= 0.0)) fail(where(e, i) + "negative list count for '" + p.name + "'");
     const uint64_t n = static_cast<uint64_t>(c);
     const uint64_t left = data_.size() - cur_;
-    const uint64_t per = format_ == Format::Ascii ? 2 : type_size(p.type);
-    if (n > (left + 1) / per)
+    // Binary: exact byte count. Ascii: one character plus a separator per value, except that
+    // the very last value of the file may end without a separator.
+    const bool ascii = format_ == Format::Ascii;
+    const uint64_t per = ascii ? 2 : type_size(p.type);
+    if (n > (ascii ? (left + 1) / per : left / per))
       fail(where(e, i) + "list '" + p.name + "' claims " + detail::count_str(n) +
            " entries, more than the rest of the file holds (truncated data?)");
     return n;

@@ -27,6 +27,7 @@ w("obj_normal_out_of_range.obj", tri + "vn 0 0 1\nf 1//1 2//1 3//7\n")
 w("obj_mtl_dotdot.obj", "mtllib ../escape.mtl\n" + tri + "f 1 2 3\n")
 w("obj_mtl_absolute.obj", "mtllib /etc/passwd\n" + tri + "f 1 2 3\n")
 w("obj_inf_vertices.obj", "v 1e999 0 0\nv 1 -1e999 0\nv 0 1 1e999\nf 1 2 3\n")
+w("obj_nan_vertices.obj", "v nan 0 0\nv 1 NaN 0\n  v\t0 1 inf\nf 1 2 3\n")
 w("obj_polygon_300.obj", "".join(f"v {i} {i*i % 7} 0\n" for i in range(300)) +
   "f " + " ".join(str(i + 1) for i in range(300)) + "\n")
 w("obj_no_faces.obj", tri)
@@ -51,6 +52,9 @@ w("ply_count_exceeds_file.ply", hdr("binary_big_endian", 1000, 1).encode() + ver
 w("ply_huge_list_count.ply", ("ply\nformat binary_little_endian 1.0\nelement vertex 3\nproperty float x\n"
   "property float y\nproperty float z\nelement face 1\nproperty list uint int vertex_indices\nend_header\n").encode()
   + verts + struct.pack("<I", 0xFFFFFFF0) + struct.pack("<3i", 0, 1, 2))
+w("ply_skip_list_overrun.ply", ("ply\nformat binary_little_endian 1.0\nelement vertex 3\nproperty float x\n"
+  "property float y\nproperty float z\nelement junk 1\nproperty list uchar int stuff\nelement face 1\n"
+  "property list uchar int vertex_indices\nend_header\n").encode() + verts + b"\x01\x00\x00\x00")
 w("ply_negative_index.ply", hdr("ascii", 3, 1) + "0 0 0\n1 0 0\n0 1 0\n3 0 -1 2\n")
 w("ply_index_out_of_range.ply", hdr("binary_little_endian", 3, 1).encode() + verts + b"\x03" + struct.pack("<3i", 0, 1, 3))
 w("ply_index_out_of_range_be.ply", hdr("binary_big_endian", 3, 1).encode() + struct.pack(">9f", 0, 0, 0, 1, 0, 0, 0, 1, 0)
@@ -111,13 +115,17 @@ wj("gltf_bad_stride.gltf", gltf(bufferViews=[{"buffer": 0, "byteOffset": 0, "byt
 wj("gltf_material_out_of_range.gltf", gltf(meshes=[{"primitives": [{"attributes": {"POSITION": 0}, "indices": 1, "material": 4}]}]))
 wj("gltf_no_meshes.gltf", {"asset": {"version": "2.0"}, "scenes": [{"nodes": [0]}], "nodes": [{}]})
 wj("gltf_nan_vertices.gltf", gltf(buffers=[{"byteLength": len(buf), "uri": b64(struct.pack("<9f", float("nan"), 0, 0, 1, 0, 0, 0, 1, 0) + idx)}]))
+deep = "[" * 100000 + "]" * 100000  # tinygltf converts extras recursively: stack overflow
+w("gltf_deep_nesting.gltf", json.dumps(gltf(extras={"x": 1})).replace('{"x": 1}', deep))
 w("gltf_empty.gltf", "")
 w("gltf_not_json.gltf", '{"asset": {"version": "2.0"}, "nodes": [ {"mesh": 0,, ]')
 w("gltf_garbage.gltf", garbage)
 
 # ---- GLB
-def glb(js, bin_=None, total=None, jlen=None, blen=None):
+def glb(js, bin_=None, total=None, jlen=None, blen=None, deep=None):
     j = json.dumps(js).encode()
+    if deep:
+        j = j.replace(b'"@DEEP@"', deep.encode())
     j += b" " * (-len(j) % 4)
     out = struct.pack("<II", len(j) if jlen is None else jlen, 0x4E4F534A) + j
     if bin_ is not None:
@@ -137,6 +145,7 @@ w("glb_truncated.glb", glb(gb, buf)[:-12])
 w("glb_version1.glb", b"glTF" + struct.pack("<I", 1) + glb(gb, buf)[8:])
 w("glb_missing_bin.glb", glb(gb))
 w("glb_buffer_too_long.glb", glb(gltf(buffers=[{"byteLength": 4096}]), buf))
+w("glb_deep_nesting.glb", glb(gltf(buffers=[{"byteLength": len(buf)}], extras="@DEEP@"), buf, deep="[" * 20000 + "]" * 20000))
 w("glb_cyclic_nodes.glb", glb(gltf(buffers=[{"byteLength": len(buf)}], nodes=[{"mesh": 0, "children": [1]}, {"children": [0]}]), buf))
 
 # ---- JSON scenes

@@ -21,15 +21,17 @@ w("cube.obj", obj)
 
 def ply_header(fmt):
     return ("ply\nformat %s 1.0\ncomment sample\nelement vertex 8\nproperty float x\nproperty float y\n"
-            "property double z\nproperty uchar red\nelement face 6\nproperty list uchar int vertex_indices\n"
+            "property double z\nproperty uchar red\nelement junk 2\nproperty list uchar short stuff\nproperty int n\n"
+            "element face 6\nproperty list uchar int vertex_indices\n"
             "element tristrips 1\nproperty list int int vertex_indices\nend_header\n" % fmt)
 strip = [0, 1, 2, 3, -1, 4, 5, 6, 7]
 w("cube_ascii.ply", ply_header("ascii") + "".join("%d %d %d 255\n" % v for v in V)
-  + "".join("4 %d %d %d %d\n" % q for q in Q) + "%d %s\n" % (len(strip), " ".join(map(str, strip))))
+  + "2 7 -8 1\n0 5\n" + "".join("4 %d %d %d %d\n" % q for q in Q) + "%d %s\n" % (len(strip), " ".join(map(str, strip))))
 for name, e in (("cube_le.ply", "<"), ("cube_be.ply", ">")):
     b = ply_header("binary_little_endian" if e == "<" else "binary_big_endian").encode()
     for v in V:
         b += struct.pack(e + "ffdB", v[0], v[1], v[2], 255)
+    b += struct.pack(e + "B2hi", 2, 7, -8, 1) + struct.pack(e + "Bi", 0, 5)
     for q in Q:
         b += struct.pack(e + "B4i", 4, *q)
     b += struct.pack(e + "i", len(strip)) + struct.pack(e + "%di" % len(strip), *strip)

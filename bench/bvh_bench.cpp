@@ -1,0 +1,137 @@
+// Google Benchmark: BVH build and tracing on the Stanford bunny (owner: accel).
+//   build/release/specula_bench --benchmark_filter=Bvh
+// Each benchmark skips with an error when the shared mesh is absent.
+#include <benchmark/benchmark.h>
+
+#include <cmath>
+#include <cstdlib>
+#include <filesystem>
+#include <memory>
+#include <optional>
+#include <string>
+#include <vector>
+
+#include "specula/accel.h"
+#include "specula/bvh.h"
+#include "specula/load.h"
+#include "specula/render.h"
+
+namespace {
+
+using namespace specula;
+
+/// The bunny scene (with its default camera), loaded once; nullopt when the mesh is absent.
+const std::optional<Scene>& bunny() {
+  static const std::optional<Scene> scene = []() -> std::optional<Scene> {
+    std::filesystem::path dir;
+    if (const char* env = std::getenv("SPECULA_DATA"); env && *env) dir = env;
+    else dir = std::filesystem::path(SPECULA_SOURCE_DIR) / ".." / "shared" / "data" / "meshes";
+    const auto path = dir / "stanford-bunny.obj";
+    if (!std::filesystem::exists(path)) return std::nullopt;
+    return load_scene(path.string());
+  }();
+  return scene;
+}
+
+bool require_bunny(benchmark::State& state) {
+  if (bunny()) return true;
+  state.SkipWithError("stanford-bunny.obj not found (set SPECULA_DATA or place ../shared/data/meshes beside the source tree)");
+  return false;
+}
+
+TriangleInput bunny_input() { return {bunny()->positions, bunny()->indices, {}}; }
+
+void BM_BvhBuild(benchmark::State& state) {
+  if (!require_bunny(state)) return;
+  BvhOptions o;
+  o.threads = static_cast<int>(state.range(0));
+  BuildInfo info;
+  for (auto _ : state) {
+    Bvh bvh = Bvh::build(bunny_input(), o, &info);
+    benchmark::DoNotOptimize(bvh);
+  }
+  state.counters["nodes"] = static_cast<double>(info.nodes);
+  state.counters["sah"] = info.sah_cost;
+  state.counters["MB"] = static_cast<double>(info.bytes) / 1048576.0;
+  state.counters["tris/s"] = benchmark::Counter(static_cast<double>(bunny()->triangle_count()), benchmark::Counter::kIsIterationInvariantRate);
+}
+BENCHMARK(BM_BvhBuild)->Arg(1)->Arg(0)->ArgName("threads")->Unit(benchmark::kMillisecond);
+
+/// Primary rays (640 x 480 from the scene camera) and cosine-distributed bounces from their hits.
+struct RaySets {
+  std::vector<Ray> primary, diffuse;
+};
+
+const RaySets& ray_sets(const Bvh& bvh) {
+  static const RaySets sets = [&bvh] {
+    RaySets s;
+    const PinholeCamera cam(bunny()->cameras.front(), 640, 480);
+    for (int y = 0; y < 480; ++y)
+      for (int x = 0; x < 640; ++x) s.primary.push_back(cam.generate(static_cast<float>(x) + 0.5f, static_cast<float>(y) + 0.5f));
+    std::vector<Hit> hits(s.primary.size());
+    bvh.intersect(s.primary, hits);
+    uint32_t state = 12345u;
+    const auto rnd = [&state] {
+      state = state * 1664525u + 1013904223u;
+      return static_cast<float>(state >> 8) * (1.0f / 16777216.0f);
+    };
+    for (size_t i = 0; i < hits.size(); ++i) {
+      if (!hits[i].hit()) continue;
+      const Ray& r = s.primary[i];
+      const Vec3 n = dot(r.dir, hits[i].ng) < 0.0f ? hits[i].ng : -hits[i].ng;
+      Vec3 t, b;
+      orthonormal_basis(n, t, b);
+      const float u1 = rnd(), u2 = rnd(), rad = std::sqrt(u1), phi = 2.0f * kPi * u2;
+      Ray d;
+      d.org = offset_ray_origin(r.org + r.dir * hits[i].t, n);
+      d.dir = normalize(t * (rad * std::cos(phi)) + b * (rad * std::sin(phi)) + n * std::sqrt(1.0f - u1));
+      s.diffuse.push_back(d);
+    }
+    return s;
+  }();
+  return sets;
+}
+
+const Bvh& bunny_bvh() {
+  static const Bvh bvh = Bvh::build(bunny_input());
+  return bvh;
+}
+
+void trace(benchmark::State& state, const std::vector<Ray>& rays) {
+  std::vector<Hit> hits(rays.size());
+  for (auto _ : state) {
+    bunny_bvh().intersect(rays, hits);
+    benchmark::DoNotOptimize(hits.data());
+  }
+  state.counters["Mrays"] =
+      benchmark::Counter(static_cast<double>(rays.size()) * 1e-6, benchmark::Counter::kIsIterationInvariantRate);
+}
+
+void BM_BvhTracePrimary(benchmark::State& state) {
+  if (!require_bunny(state)) return;
+  trace(state, ray_sets(bunny_bvh()).primary);
+}
+BENCHMARK(BM_BvhTracePrimary)->Unit(benchmark::kMillisecond);
+
+void BM_BvhTraceDiffuse(benchmark::State& state) {
+  if (!require_bunny(state)) return;
+  trace(state, ray_sets(bunny_bvh()).diffuse);
+}
+BENCHMARK(BM_BvhTraceDiffuse)->Unit(benchmark::kMillisecond);
+
+void BM_BvhOccludedDiffuse(benchmark::State& state) {
+  if (!require_bunny(state)) return;
+  const std::vector<Ray>& rays = ray_sets(bunny_bvh()).diffuse;
+  std::vector<Vec3> out(rays.size());
+  for (auto _ : state) {
+    bunny_bvh().transmittance(rays, out);
+    benchmark::DoNotOptimize(out.data());
+  }
+  state.counters["Mrays"] =
+      benchmark::Counter(static_cast<double>(rays.size()) * 1e-6, benchmark::Counter::kIsIterationInvariantRate);
+}
+BENCHMARK(BM_BvhOccludedDiffuse)->Unit(benchmark::kMillisecond);
+
+}  // namespace
+
+BENCHMARK_MAIN();
