@@ -390,6 +390,43 @@ void check_invariants(const Bvh& bvh, const TriangleInput& input, const BvhOptio
     }
   }
   EXPECT_TRUE(std::all_of(in_leaf.begin(), in_leaf.end(), [](int c) { return c == 1; }));
+
+  // The 4-wide traversal layout covers the same triangles exactly once, children inside.
+  const auto wide = bvh.wide_nodes();
+  if (n > 0) {
+    ASSERT_FALSE(wide.empty());
+    std::vector<int> in_wide(n, 0);
+    std::vector<uint32_t> todo{0};
+    size_t visited = 0;
+    while (!todo.empty()) {
+      const BvhWideNode& w = wide[todo.back()];
+      todo.pop_back();
+      ASSERT_LT(++visited, wide.size() + 1) << "wide tree has a cycle";
+      for (int i = 0; i < 4; ++i) {
+        const bool empty = w.b[0][0][i] > w.b[1][0][i];
+        if (empty) continue;
+        if (w.count[i] > 0) {
+          ASSERT_LE(size_t{w.child[i]} + w.count[i], n);
+          for (uint32_t t = w.child[i]; t < w.child[i] + w.count[i]; ++t) {
+            ++in_wide[t];
+            for (int k = 0; k < 3; ++k) {
+              const Vec3 p = bvh.triangles()[t].vertex(k);
+              for (int a = 0; a < 3; ++a) {
+                EXPECT_LE(w.b[0][a][i], p[a]);
+                EXPECT_GE(w.b[1][a][i], p[a]);
+              }
+            }
+          }
+        } else {
+          ASSERT_LT(w.child[i], wide.size());
+          ASSERT_NE(w.child[i], 0u);
+          todo.push_back(w.child[i]);
+        }
+      }
+    }
+    EXPECT_EQ(visited, wide.size());
+    EXPECT_TRUE(std::all_of(in_wide.begin(), in_wide.end(), [](int c) { return c == 1; }));
+  }
   const BuildInfo& info = bvh.build_info();
   EXPECT_EQ(info.leaves, leaves);
   EXPECT_EQ(info.nodes, leaves + interior);

@@ -674,3 +674,18 @@ TEST(LoadTiming, BinaryAndAsciiPlyOfTheBunny) {
   }
   fs::remove_all(d);
 }
+
+TEST(JsonScene, AFilePlacedTwiceSharesItsMaterials) {
+  const fs::path d = test::temp_dir("jsontwice");
+  write_text(d / "a.mtl", "newmtl red\nKd 1 0 0\n");
+  write_text(d / "t.obj", "mtllib a.mtl\nv 0 0 0\nv 1 0 0\nv 0 1 0\nusemtl red\nf 1 2 3\n");
+  write_text(d / "s.json", R"({"meshes": [{"file": "t.obj"}, {"file": "./t.obj", "transform": {"translate": [0, 0, 2]}},
+                                         {"file": "t.obj", "material": {"diffuse": [0, 1, 0]}}]})");
+  const Scene s = load_json_scene(d / "s.json", quiet());
+  ASSERT_EQ(s.triangle_count(), 3u);
+  EXPECT_EQ(s.material_ids[0], s.material_ids[1]);
+  EXPECT_EQ(s.materials[s.material_ids[0]].name, "red");
+  EXPECT_EQ(s.materials[s.material_ids[2]].diffuse, (Vec3{0, 1, 0}));
+  EXPECT_EQ(s.positions[s.indices[3]], (Vec3{0, 0, 2}));
+  fs::remove_all(d);
+}

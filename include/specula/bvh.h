@@ -42,6 +42,18 @@ struct BvhTriangle {
   Vec3 vertex(int i) const { return {v[3 * i], v[3 * i + 1], v[3 * i + 2]}; }
 };
 
+/// Traversal layout derived from the binary tree after the build (Wald et al. 2008, "Getting
+/// Rid of Packets": multi-branching BVH for single rays): every node holds up to four children
+/// (the binary tree with every other level collapsed), bounds stored as SIMD lanes so one SSE
+/// slab test covers all four. b[0] = min, b[1] = max, each [axis][child]. Empty slots have
+/// min = +inf, max = -inf, which the near/far-plane slab test always rejects.
+struct alignas(64) BvhWideNode {
+  float b[2][3][4];
+  uint32_t child[4];  ///< interior: index of a BvhWideNode; leaf: first triangle (BVH order)
+  uint32_t count[4];  ///< triangles of a leaf child; 0 for an interior child
+};
+static_assert(sizeof(BvhWideNode) == 128, "wide nodes are two cache lines");
+
 namespace detail {
 /// Minimal allocator for cache-line aligned arrays (nodes, triangles).
 template <class T, size_t Align = 64>
@@ -80,6 +92,8 @@ class Bvh final : public Tracer {
   bool occluded(const Ray& ray) const;  ///< any triangle crossed in (tmin, tmax), transparent or not
 
   std::span<const BvhNode> nodes() const { return nodes_; }
+  /// The 4-wide traversal layout derived from nodes() (what the queries actually walk).
+  std::span<const BvhWideNode> wide_nodes() const { return wide_; }
   std::span<const BvhTriangle> triangles() const { return tris_; }
   /// BVH order -> scene triangle index.
   std::span<const uint32_t> prim_ids() const { return prim_ids_; }
@@ -88,6 +102,7 @@ class Bvh final : public Tracer {
 
  private:
   std::vector<BvhNode, detail::AlignedAllocator<BvhNode>> nodes_;
+  std::vector<BvhWideNode, detail::AlignedAllocator<BvhWideNode>> wide_;
   std::vector<BvhTriangle, detail::AlignedAllocator<BvhTriangle>> tris_;
   std::vector<uint32_t> prim_ids_;
   std::vector<Vec3> transmittance_;  ///< BVH order; empty when every triangle is opaque

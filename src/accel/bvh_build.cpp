@@ -16,6 +16,7 @@
 
 #include <algorithm>
 #include <atomic>
+#include <functional>
 #include <cmath>
 #include <limits>
 #include <memory>
@@ -486,7 +487,60 @@ Bvh Bvh::build(const TriangleInput& input, const BvhOptions& options, BuildInfo*
     }
   });
 
-  // 4. Figures: node/leaf counts, depth and the SAH cost (root-area normalised), summed in
+  // 4. The 4-wide traversal layout: collapse every other level of the binary tree, opening
+  //    the largest interior child first (as Embree's and Wald's BVH4 builders do).
+  if (!bvh.tris_.empty()) {
+    const auto& bin = bvh.nodes_;
+    auto& wide = bvh.wide_;
+    wide.reserve(bin.size() / 2 + 1);
+    const auto half_area_of = [&bin](uint32_t i) {
+      const Vec3 e = bin[i].max - bin[i].min;
+      return e.x * e.y + e.y * e.z + e.z * e.x;
+    };
+    const std::function<uint32_t(uint32_t)> collapse = [&](uint32_t b) -> uint32_t {
+      uint32_t list[4];
+      int k = 0;
+      if (bin[b].is_leaf()) {
+        list[k++] = b;
+      } else {
+        list[k++] = bin[b].left_first;
+        list[k++] = bin[b].left_first + 1;
+      }
+      while (k < 4) {
+        int open = -1;
+        float best = -1.0f;
+        for (int i = 0; i < k; ++i)
+          if (!bin[list[i]].is_leaf() && half_area_of(list[i]) > best) best = half_area_of(list[i]), open = i;
+        if (open < 0) break;
+        const uint32_t l = bin[list[open]].left_first;
+        list[open] = l;
+        list[k++] = l + 1;
+      }
+      const uint32_t index = static_cast<uint32_t>(wide.size());
+      wide.emplace_back();
+      for (int i = 0; i < 4; ++i) {
+        BvhWideNode& w = wide[index];
+        if (i >= k) {
+          for (int a = 0; a < 3; ++a) w.b[0][a][i] = kInf, w.b[1][a][i] = -kInf;
+          w.child[i] = 0;
+          w.count[i] = 0;
+          continue;
+        }
+        const BvhNode& c = bin[list[i]];
+        for (int a = 0; a < 3; ++a) w.b[0][a][i] = c.min[a], w.b[1][a][i] = c.max[a];
+        w.count[i] = c.count;
+        w.child[i] = c.left_first;
+        if (!c.is_leaf()) {
+          const uint32_t sub = collapse(list[i]);
+          wide[index].child[i] = sub;  // (wide may have reallocated)
+        }
+      }
+      return index;
+    };
+    collapse(0);
+  }
+
+  // 5. Figures: node/leaf counts, depth and the SAH cost (root-area normalised), summed in
   //    depth-first order so the figures do not depend on the node numbering (thread count).
   BuildInfo& bi = bvh.info_;
   const size_t m = bvh.tris_.size();
@@ -536,7 +590,7 @@ Aabb Bvh::bounds() const {
 }
 
 size_t Bvh::memory_bytes() const {
-  return nodes_.size() * sizeof(BvhNode) + tris_.size() * sizeof(BvhTriangle) +
+  return nodes_.size() * sizeof(BvhNode) + wide_.size() * sizeof(BvhWideNode) + tris_.size() * sizeof(BvhTriangle) +
          prim_ids_.size() * sizeof(uint32_t) + transmittance_.size() * sizeof(Vec3);
 }
 

@@ -157,7 +157,7 @@ class GltfLoader {
     } else {
       json_text = data;
     }
-    prescan_json(json_text, binary);
+    prescan_json(json_text);
 
     guard_.dir = fs::weakly_canonical(path_.parent_path().empty() ? fs::path(".") : path_.parent_path());
     tinygltf::TinyGLTF ctx;
@@ -245,7 +245,7 @@ class GltfLoader {
     }
   }
 
-  void prescan_json(const std::string& text, bool binary) const {
+  void prescan_json(const std::string& text) const {
     check_nesting(text);
     json j;
     try {
@@ -285,7 +285,6 @@ class GltfLoader {
         }
         std::string why;
         if (detail::confined_path(dir, url_decode(uri), why).empty()) fail(where + why);
-        (void)binary;
       }
     };
     if (j.contains("extensionsRequired") && j["extensionsRequired"].is_array()) {

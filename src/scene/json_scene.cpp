@@ -20,7 +20,7 @@ namespace fs = std::filesystem;
 namespace specula {
 namespace {
 
-using json = nlohmann::json;
+using json = nlohmann::ordered_json;  // keeps "materials" in file order
 
 class JsonSceneLoader {
  public:
@@ -248,28 +248,42 @@ class JsonSceneLoader {
       const std::string ext = detail::lower_extension(file);
       if (ext != ".obj" && ext != ".ply" && ext != ".gltf" && ext != ".glb")
         fail(where + ": unsupported mesh file extension '" + ext + "' (.obj, .ply, .gltf, .glb)");
-      Scene sub;
-      try {
-        if (ext == ".obj") sub = load_obj(file, options_);
-        else if (ext == ".ply") sub = load_ply(file, options_);
-        else sub = load_gltf(file, options_);
-      } catch (const Error& e) {
-        fail(where + ": " + e.what());  // the inner message names the mesh file
+      // Each file is loaded once, however many meshes place it.
+      std::error_code ec;
+      const std::string key = fs::weakly_canonical(file, ec).string();
+      auto it = loaded_.find(key);
+      if (it == loaded_.end()) {
+        Scene sub;
+        try {
+          if (ext == ".obj") sub = load_obj(file, options_);
+          else if (ext == ".ply") sub = load_ply(file, options_);
+          else sub = load_gltf(file, options_);
+        } catch (const Error& e) {
+          fail(where + ": " + e.what());  // the inner message names the mesh file
+        }
+        it = loaded_.emplace(key, std::move(sub)).first;
       }
+      const Scene& sub = it->second;
       // Geometry only: the sub-file's cameras and lights are ignored; its materials are kept
       // unless overridden.
       md.name = name.empty() ? file.stem().string() : name;
-      md.positions = std::move(sub.positions);
-      md.normals = std::move(sub.normals);
-      md.indices = std::move(sub.indices);
+      if (scene_.indices.size() + sub.indices.size() > detail::kMaxElements)
+        fail(where + ": the scene would exceed 2^31 triangle indices");
+      md.positions = sub.positions;
+      md.normals = sub.normals;
+      md.indices = sub.indices;
       if (!override_id) {
-        const uint32_t base = static_cast<uint32_t>(scene_.materials.size());
-        for (Material& mat : sub.materials) scene_.add_material(std::move(mat));
-        md.material_ids = std::move(sub.material_ids);
+        auto [base_it, first_use] = material_base_.try_emplace(key, static_cast<uint32_t>(scene_.materials.size()));
+        if (first_use)
+          for (const Material& mat : sub.materials) scene_.add_material(mat);
+        const uint32_t base = base_it->second;
+        md.material_ids = sub.material_ids;
         for (uint32_t& id : md.material_ids) id += base;
       }
     }
     if (md.indices.empty()) return;
+    if (scene_.indices.size() + md.indices.size() > detail::kMaxElements)
+      fail(where + ": the scene would exceed 2^31 triangle indices");
     detail::append_mesh(scene_, std::move(md), override_id.value_or(0), xf, dropped_);
   }
 
@@ -406,6 +420,8 @@ class JsonSceneLoader {
   const LoadOptions& options_;
   Scene scene_;
   std::map<std::string, uint32_t> material_ids_;
+  std::map<std::string, Scene> loaded_;  ///< mesh files by canonical path
+  std::map<std::string, uint32_t> material_base_;  ///< first material id of each file's materials
   size_t dropped_ = 0;
 };
 
