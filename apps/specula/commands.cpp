@@ -15,6 +15,7 @@
 #include <string>
 #include <vector>
 
+#include "core/format.h"
 #include "specula/error.h"
 #include "specula/image.h"
 #include "specula/timer.h"
@@ -28,16 +29,6 @@ double median(std::vector<double> v) {
   return n == 0 ? 0.0 : (n % 2 ? v[n / 2] : 0.5 * (v[n / 2 - 1] + v[n / 2]));
 }
 
-std::string with_thousands(uint64_t n) {
-  // Built front to back (GCC 12 warns falsely about std::string::insert under -O3).
-  const std::string digits = std::to_string(n);
-  std::string s;
-  for (size_t i = 0; i < digits.size(); ++i) {
-    if (i > 0 && (digits.size() - i) % 3 == 0) s.push_back(',');
-    s.push_back(digits[i]);
-  }
-  return s;
-}
 
 void print_build(const char* accel, const BuildInfo& b) {
   std::printf("build    %9.2f ms  (%s: %s nodes, %s leaves, depth %u, SAH cost %.2f, %.2f MiB)\n",

@@ -10,6 +10,7 @@
 
 #include "scene/loader_internal.h"
 #include "specula/error.h"
+#include "specula/image.h"
 #include "specula/load.h"
 
 namespace fs = std::filesystem;
@@ -68,10 +69,19 @@ Scene load_scene(const std::string& spec, const LoadOptions& options) {
   }
   std::error_code ec;
   if (!fs::exists(path, ec)) throw file_error(spec, "file not found");
-  if (ext == ".json") return load_json_scene(path, options);
-  if (ext == ".gltf" || ext == ".glb") return load_gltf(path, options);
-  if (ext == ".obj") return load_obj(path, options);
-  return load_ply(path, options);
+  Scene scene = ext == ".json"                   ? load_json_scene(path, options)
+                : (ext == ".gltf" || ext == ".glb") ? load_gltf(path, options)
+                : ext == ".obj"                     ? load_obj(path, options)
+                                                    : load_ply(path, options);
+  // The scene is complete plain data: an image sky is decoded here, not by the renderer.
+  if (scene.sky.type == SkyType::Image && scene.sky.image.empty()) {
+    try {
+      load_sky_image(scene.sky);
+    } catch (const Error& e) {
+      throw file_error(spec, std::string("sky image: ") + e.what());
+    }
+  }
+  return scene;
 }
 
 // ---------------------------------------------------------------------------------------------
@@ -95,7 +105,7 @@ uint64_t checked_file_size(const fs::path& path) {
   const uintmax_t size = fs::file_size(path, ec);
   if (ec) throw file_error(path.string(), "cannot read file size: " + ec.message());
   if (size > kMaxFileBytes)
-    throw file_error(path.string(), "file is " + count_str(size) +
+    throw file_error(path.string(), "file is " + with_thousands(size) +
                                         " bytes; files larger than 4 GiB are refused");
   return size;
 }
@@ -234,7 +244,7 @@ void append_mesh(Scene& scene, MeshData&& mesh, uint32_t material_id, const Mat4
 
 void warn_dropped(const LoadOptions& options, const std::string& file, size_t dropped_triangles) {
   if (dropped_triangles == 0) return;
-  warn(options, file + ": dropped " + count_str(dropped_triangles) + " triangle" +
+  warn(options, file + ": dropped " + with_thousands(dropped_triangles) + " triangle" +
                     (dropped_triangles == 1 ? "" : "s") +
                     " with non-finite (NaN/Inf) vertex coordinates");
 }
@@ -247,14 +257,6 @@ void validate_scene(const Scene& scene, const std::string& file) {
   }
 }
 
-std::string count_str(uint64_t n) {
-  std::string digits = std::to_string(n), out;
-  for (size_t i = 0; i < digits.size(); ++i) {
-    if (i > 0 && (digits.size() - i) % 3 == 0) out += ',';
-    out += digits[i];
-  }
-  return out;
-}
 
 }  // namespace detail
 }  // namespace specula

@@ -2,6 +2,8 @@
 // limits, path confinement and the NaN-filtering mesh appender. Not part of the public API.
 #pragma once
 
+#include "core/format.h"
+
 #include <cstdint>
 #include <filesystem>
 #include <string>
@@ -60,7 +62,5 @@ void warn_dropped(const LoadOptions& options, const std::string& file, size_t dr
 /// Runs scene.validate() and rethrows its error prefixed with \p file.
 void validate_scene(const Scene& scene, const std::string& file);
 
-/// "12,345" style thousands separators for counts in messages.
-std::string count_str(uint64_t n);
 
 }  // namespace specula::detail

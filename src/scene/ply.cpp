@@ -90,7 +90,7 @@ class PlyReader {
     parse_header();
     read_body();
     if (polygons_skipped_ > 0)
-      detail::warn(options_, file_ + ": skipped " + detail::count_str(polygons_skipped_) +
+      detail::warn(options_, file_ + ": skipped " + with_thousands(polygons_skipped_) +
                                  " face(s) with fewer than 3 vertices");
     Scene scene;
     scene.name = path_.stem().string();
@@ -199,7 +199,7 @@ class PlyReader {
         if (have_vertex) fail("element 'vertex' declared twice");
         have_vertex = true;
         if (e.count >= detail::kMaxElements)
-          fail("element 'vertex': " + detail::count_str(e.count) + " vertices exceed the limit of 2^31");
+          fail("element 'vertex': " + with_thousands(e.count) + " vertices exceed the limit of 2^31");
         vertex_count_ = e.count;
         const auto find = [&](const char* n) -> int {
           for (size_t i = 0; i < e.props.size(); ++i)
@@ -214,7 +214,7 @@ class PlyReader {
         has_normals_ = nxyz_[0] >= 0 && nxyz_[1] >= 0 && nxyz_[2] >= 0;
       }
       if (e.count > 0 && e.props.empty())
-        fail("element '" + e.name + "' has " + detail::count_str(e.count) + " entries but no properties");
+        fail("element '" + e.name + "' has " + with_thousands(e.count) + " entries but no properties");
       // Minimum bytes per entry: binary = scalar sizes + list count sizes; ascii = one
       // character plus one separator per value (the last value may omit the separator).
       uint64_t per = 0;
@@ -223,13 +223,13 @@ class PlyReader {
       const uint64_t slack = format_ == Format::Ascii ? 1 : 0;  // see read_count
       if (e.count > 0) {
         if (per > 0 && e.count > (available + slack) / per)
-          fail("element '" + e.name + "' claims " + detail::count_str(e.count) +
-               " entries, more than the " + detail::count_str(available) +
+          fail("element '" + e.name + "' claims " + with_thousands(e.count) +
+               " entries, more than the " + with_thousands(available) +
                " bytes after the header can hold");
         needed += e.count * per;
         if (needed > available + slack)
           fail("element '" + e.name + "': the declared element counts need at least " +
-               detail::count_str(needed) + " bytes but only " + detail::count_str(available) +
+               with_thousands(needed) + " bytes but only " + with_thousands(available) +
                " follow the header");
       }
     }
@@ -324,7 +324,7 @@ class PlyReader {
     const bool ascii = format_ == Format::Ascii;
     const uint64_t per = ascii ? 2 : type_size(p.type);
     if (n > (ascii ? (left + 1) / per : left / per))
-      fail(where(e, i) + "list '" + p.name + "' claims " + detail::count_str(n) +
+      fail(where(e, i) + "list '" + p.name + "' claims " + with_thousands(n) +
            " entries, more than the rest of the file holds (truncated data?)");
     return n;
   }
@@ -399,7 +399,7 @@ class PlyReader {
           }
           if (!(v >= 0.0) || v >= static_cast<double>(vertex_count_) || v != std::floor(v))
             fail(where(e, i) + "vertex index " + format_index(v) + " out of range (" +
-                 detail::count_str(vertex_count_) + " vertices)");
+                 with_thousands(vertex_count_) + " vertices)");
           poly.push_back(static_cast<uint32_t>(v));
         }
         if (strips) {
