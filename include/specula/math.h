@@ -158,12 +158,15 @@ struct Mat4 {
     return {m[0] * v.x + m[1] * v.y + m[2] * v.z, m[4] * v.x + m[5] * v.y + m[6] * v.z,
             m[8] * v.x + m[9] * v.y + m[10] * v.z};
   }
-  /// Transforms a normal by the inverse transpose of the upper 3x3 (cofactor matrix; the
-  /// determinant's scale is irrelevant because callers normalize).
+  /// Transforms a normal by the inverse transpose of the upper 3x3. With rows r0..r2 the
+  /// cofactor matrix has rows r1 x r2, r2 x r0, r0 x r1 and equals det * inverse-transpose;
+  /// its magnitude is irrelevant because callers normalize, but its sign is not: a mirroring
+  /// transform (det < 0) must still map an outward normal to the outward side.
   Vec3 transform_normal(const Vec3& n) const {
     const Vec3 r0{m[0], m[1], m[2]}, r1{m[4], m[5], m[6]}, r2{m[8], m[9], m[10]};
-    const Vec3 c0 = cross(r1, r2), c1 = cross(r2, r0), c2 = cross(r0, r1);
-    return c0 * n.x + c1 * n.y + c2 * n.z;
+    const Vec3 c0 = cross(r1, r2);
+    const Vec3 w{dot(c0, n), dot(cross(r2, r0), n), dot(cross(r0, r1), n)};
+    return dot(r0, c0) < 0.0f ? -w : w;
   }
 };
 

@@ -55,20 +55,10 @@ void MeshBuilder::square_ring(float outer, float inner, float half_t) {
   }
 }
 
-Vec3 transform_normal_exact(const Mat4& xf, const Vec3& n) {
-  // Inverse transpose of the upper 3x3 up to the determinant's scale: the cofactor matrix,
-  // whose rows are the cross products of pairs of rows of M. (Mat4::transform_normal in
-  // math.h applies its transpose instead, which turns rotated normals the wrong way.)
-  const Vec3 r0{xf.m[0], xf.m[1], xf.m[2]}, r1{xf.m[4], xf.m[5], xf.m[6]}, r2{xf.m[8], xf.m[9], xf.m[10]};
-  const Vec3 w{dot(cross(r1, r2), n), dot(cross(r2, r0), n), dot(cross(r0, r1), n)};
-  // A mirroring transform (negative determinant) would flip the cofactor direction.
-  const float det = dot(r0, cross(r1, r2));
-  return normalize(det < 0.0f ? -w : w);
-}
 
 void MeshBuilder::transform(const Mat4& xf) {
   for (Vec3& p : positions) p = xf.transform_point(p);
-  for (Vec3& n : normals) n = transform_normal_exact(xf, n);
+  for (Vec3& n : normals) n = normalize(xf.transform_normal(n));
 }
 
 void MeshBuilder::append(const MeshBuilder& other) {

@@ -35,8 +35,6 @@ struct MeshBuilder {
   void add_to(Scene& scene, const std::string& name, uint32_t material) const;
 };
 
-/// Transforms a normal by the inverse transpose of \p xf's upper 3x3 (normalised).
-Vec3 transform_normal_exact(const Mat4& xf, const Vec3& n);
 
 /// Geodesic sphere: an icosahedron subdivided \p levels times (20 * 4^levels triangles),
 /// with exact radial normals.

@@ -40,7 +40,7 @@ bool add_bunny(Scene& s, uint32_t material, const LoadOptions& options,
     m.indices = mesh.indices;
     if (mesh.normals.size() == mesh.positions.size()) m.normals = mesh.normals;
     else m.normals = compute_vertex_normals(mesh.positions, mesh.indices);
-    m.transform(xf);  // transforms normals exactly (see transform_normal_exact)
+    m.transform(xf);  // normals by the inverse transpose
     m.add_to(s, "bunny", material);
     return true;
   }
