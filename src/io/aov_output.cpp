@@ -5,6 +5,7 @@
 #include <string>
 #include <vector>
 
+#include "core/hash.h"
 #include "io/image_util.h"
 #include "specula/error.h"
 #include "specula/image.h"
@@ -23,14 +24,6 @@ Vec3 heat(float t) {
   return lerp(stops[i], stops[i + 1], t - static_cast<float>(i));
 }
 
-uint32_t hash_id(uint32_t x) {
-  x ^= x >> 16;
-  x *= 0x7feb352dU;
-  x ^= x >> 15;
-  x *= 0x846ca68bU;
-  x ^= x >> 16;
-  return x;
-}
 
 /// Colours already in display space are written without the sRGB curve a second time.
 void write_display_png(const std::string& path, int w, int h, const std::vector<Vec3>& display) {
@@ -95,7 +88,7 @@ std::vector<std::string> write_aovs(const std::string& base_path, const Film& fi
         img[i] = Vec3{};
         continue;
       }
-      const uint32_t hsh = hash_id(film.prim_id[i]);
+      const uint32_t hsh = hash_u32(film.prim_id[i]);
       img[i] = Vec3{0.2f + 0.8f * static_cast<float>(hsh & 0xFF) / 255.0f,
                     0.2f + 0.8f * static_cast<float>((hsh >> 8) & 0xFF) / 255.0f,
                     0.2f + 0.8f * static_cast<float>((hsh >> 16) & 0xFF) / 255.0f};

@@ -22,6 +22,7 @@
 #include <cstring>
 #include <string>
 
+#include "core/hash.h"
 #include "render/sky.h"
 #include "specula/error.h"
 #include "specula/render.h"
@@ -110,15 +111,6 @@ struct Scratch {
   std::vector<uint64_t> cost;
 };
 
-uint32_t hash_u32(uint32_t x) {
-  // Integer hash (Chris Wellons' "lowbias32"): decorrelates neighbouring pixel indices.
-  x ^= x >> 16;
-  x *= 0x7feb352dU;
-  x ^= x >> 15;
-  x *= 0x846ca68bU;
-  x ^= x >> 16;
-  return x;
-}
 
 float to_unit_float(uint32_t x) { return static_cast<float>(x >> 8) * (1.0f / 16777216.0f); }
 
