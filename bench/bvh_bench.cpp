@@ -105,6 +105,10 @@ void trace(benchmark::State& state, const std::vector<Ray>& rays) {
   }
   state.counters["Mrays"] =
       benchmark::Counter(static_cast<double>(rays.size()) * 1e-6, benchmark::Counter::kIsIterationInvariantRate);
+  TraceStats stats;  // work per ray (load-independent), from one extra pass outside the timing
+  bunny_bvh().intersect(rays, hits, &stats);
+  state.counters["nodes/ray"] = static_cast<double>(stats.nodes_visited) / static_cast<double>(stats.rays);
+  state.counters["tris/ray"] = static_cast<double>(stats.triangles_tested) / static_cast<double>(stats.rays);
 }
 
 void BM_BvhTracePrimary(benchmark::State& state) {

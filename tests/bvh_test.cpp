@@ -406,12 +406,26 @@ void check_invariants(const Bvh& bvh, const TriangleInput& input, const BvhOptio
         const bool empty = w.b[0][0][i] > w.b[1][0][i];
         if (empty) continue;
         if (w.count[i] > 0) {
-          ASSERT_LE(size_t{w.child[i]} + w.count[i], n);
-          for (uint32_t t = w.child[i]; t < w.child[i] + w.count[i]; ++t) {
+          // A leaf: ceil(count / 4) triangle blocks; lane j of the leaf is its j-th triangle,
+          // the lanes past count are padding (kNoHit, NaN vertices).
+          const auto blocks = bvh.triangle_blocks();
+          const uint32_t nblocks = (w.count[i] + 3) / 4;
+          ASSERT_LE(size_t{w.child[i]} + nblocks, blocks.size());
+          for (uint32_t j = 0; j < 4 * nblocks; ++j) {
+            const BvhTriangle4& blk = blocks[w.child[i] + j / 4];
+            const uint32_t lane = j % 4, t = blk.index[lane];
+            if (j >= w.count[i]) {
+              EXPECT_EQ(t, kNoHit);
+              for (int k = 0; k < 3; ++k)
+                for (int a = 0; a < 3; ++a) EXPECT_TRUE(std::isnan(blk.v[k][a][lane]));
+              continue;
+            }
+            ASSERT_LT(t, n);
             ++in_wide[t];
             for (int k = 0; k < 3; ++k) {
               const Vec3 p = bvh.triangles()[t].vertex(k);
               for (int a = 0; a < 3; ++a) {
+                EXPECT_EQ(blk.v[k][a][lane], p[a]);
                 EXPECT_LE(w.b[0][a][i], p[a]);
                 EXPECT_GE(w.b[1][a][i], p[a]);
               }

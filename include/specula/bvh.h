@@ -42,6 +42,15 @@ struct BvhTriangle {
   Vec3 vertex(int i) const { return {v[3 * i], v[3 * i + 1], v[3 * i + 2]}; }
 };
 
+/// Four triangles of one leaf in structure-of-arrays form for the SSE watertight test:
+/// v[vertex][axis][lane]. A leaf of n triangles owns ceil(n / 4) consecutive blocks; the lanes
+/// past its last triangle are padding (NaN vertices, never hit; index kNoHit).
+struct alignas(16) BvhTriangle4 {
+  float v[3][3][4];
+  uint32_t index[4];  ///< BVH-order triangle index of each lane (into triangles()); kNoHit = padding
+};
+static_assert(sizeof(BvhTriangle4) == 160, "triangle blocks are 2.5 cache lines");
+
 /// Traversal layout derived from the binary tree after the build (Wald et al. 2008, "Getting
 /// Rid of Packets": multi-branching BVH for single rays): every node holds up to four children
 /// (the binary tree with every other level collapsed), bounds stored as SIMD lanes so one SSE
@@ -49,8 +58,8 @@ struct BvhTriangle {
 /// min = +inf, max = -inf, which the near/far-plane slab test always rejects.
 struct alignas(64) BvhWideNode {
   float b[2][3][4];
-  uint32_t child[4];  ///< interior: index of a BvhWideNode; leaf: first triangle (BVH order)
-  uint32_t count[4];  ///< triangles of a leaf child; 0 for an interior child
+  uint32_t child[4];  ///< interior: index of a BvhWideNode; leaf: first block in triangle_blocks()
+  uint32_t count[4];  ///< triangles of a leaf child (in ceil(count / 4) blocks); 0 for an interior child
 };
 static_assert(sizeof(BvhWideNode) == 128, "wide nodes are two cache lines");
 
@@ -95,6 +104,8 @@ class Bvh final : public Tracer {
   /// The 4-wide traversal layout derived from nodes() (what the queries actually walk).
   std::span<const BvhWideNode> wide_nodes() const { return wide_; }
   std::span<const BvhTriangle> triangles() const { return tris_; }
+  /// The leaves' triangles in blocks of four (what the leaf tests actually read).
+  std::span<const BvhTriangle4> triangle_blocks() const { return tri4_; }
   /// BVH order -> scene triangle index.
   std::span<const uint32_t> prim_ids() const { return prim_ids_; }
   const BuildInfo& build_info() const { return info_; }
@@ -104,6 +115,7 @@ class Bvh final : public Tracer {
   std::vector<BvhNode, detail::AlignedAllocator<BvhNode>> nodes_;
   std::vector<BvhWideNode, detail::AlignedAllocator<BvhWideNode>> wide_;
   std::vector<BvhTriangle, detail::AlignedAllocator<BvhTriangle>> tris_;
+  std::vector<BvhTriangle4, detail::AlignedAllocator<BvhTriangle4>> tri4_;
   std::vector<uint32_t> prim_ids_;
   std::vector<Vec3> transmittance_;  ///< BVH order; empty when every triangle is opaque
   BuildInfo info_;

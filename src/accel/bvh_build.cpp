@@ -8,6 +8,8 @@
 // triangles. Primitive references (bounds + index, 32 bytes) are partitioned in place, so every
 // pass over a node's primitives is a linear walk through memory. Child bounds come for free from
 // the winning bin sweep; child centroid bounds are accumulated during the partition.
+// The SAH charges leaves per block of four triangles (the traversal tests a BvhTriangle4 block
+// at the price of about one triangle), so nodes of up to four triangles become leaves at once.
 //
 // Subtrees above a size threshold are built as TBB tasks; node pairs are allocated with an
 // atomic counter and renumbered depth-first afterwards, so the result (nodes, triangle order)
@@ -106,6 +108,11 @@ struct Bin {
 };
 
 constexpr int kMaxBins = 256;
+/// Leaves are tested four triangles at a time (BvhTriangle4), so the SAH charges a leaf by its
+/// blocks of four, as Embree's BVH4/Triangle4 builder does: splitting four triangles or fewer
+/// can never pay off, and leaves fill up to whole blocks.
+constexpr uint32_t kBlock = 4;
+inline float blocks(uint32_t n) { return static_cast<float>((n + kBlock - 1) / kBlock); }
 /// Subtrees with more primitives than this are spawned as TBB tasks.
 constexpr uint32_t kTaskThreshold = 4096;
 /// Beyond this depth the builder stops using SAH and halves index ranges, which bounds the
@@ -115,7 +122,7 @@ constexpr uint32_t kMedianDepth = 64;
 struct Split {
   int axis = -1;
   int bin = 0;  ///< primitives with bin index < bin go left
-  float cost = kInf;  ///< left_area * left_count + right_area * right_count (half areas)
+  float cost = kInf;  ///< left_area * left_blocks + right_area * right_blocks (half areas)
   Box4 left, right;
   uint32_t left_count = 0;
   float bin_min = 0.0f, bin_scale = 0.0f;  ///< binning parameters of the chosen axis
@@ -216,8 +223,7 @@ class BvhBuilder {
         lacc.grow(bins[a][i - 1].box);
         ln += bins[a][i - 1].count;
         if (ln == 0 || right_count[i] == 0) continue;
-        const float cost = half_area4(lacc.lo, lacc.hi) * static_cast<float>(ln) +
-                           right_area[i] * static_cast<float>(right_count[i]);
+        const float cost = half_area4(lacc.lo, lacc.hi) * blocks(ln) + right_area[i] * blocks(right_count[i]);
         if (cost < best.cost) {
           best.cost = cost;
           best.axis = a;
@@ -240,7 +246,8 @@ class BvhBuilder {
              const Box4& cbounds, uint32_t depth, tbb::task_group* tg) {
     BvhNode& node = nodes_[node_index];
     store_box(node, bounds);
-    if (count <= 1) {
+    if (count <= 1 || (count <= kBlock && count <= max_leaf_ && traversal_cost_ >= 1.0f)) {
+      // One block: a split costs at least traversal_cost + 1 block, more than the leaf.
       make_leaf(node, first, count);
       return;
     }
@@ -257,7 +264,7 @@ class BvhBuilder {
       const float area = bounds.half_area();
       const float split_cost =
           traversal_cost_ + (area > 0.0f ? (lbox.half_area() + rbox.half_area()) / area : 2.0f);
-      if (!(split_cost < 2.0f) && max_leaf_ >= 2) {
+      if (!(split_cost < blocks(2)) && max_leaf_ >= 2) {
         make_leaf(node, first, count);
         return;
       }
@@ -266,10 +273,9 @@ class BvhBuilder {
     } else if (depth < kMedianDepth) {
       const Split split = find_split(first, count, cbounds);
       if (split.axis >= 0) {
-        const float leaf_cost = static_cast<float>(count);
+        const float leaf_cost = blocks(count);
         const float area = bounds.half_area();
-        const float split_cost =
-            traversal_cost_ + (area > 0.0f ? split.cost / area : static_cast<float>(count));
+        const float split_cost = traversal_cost_ + (area > 0.0f ? split.cost / area : leaf_cost);
         if (split_cost < leaf_cost || count > max_leaf_) {
           mid = partition(first, count, split, lcb, rcb);
           lbox = split.left;
@@ -497,6 +503,24 @@ Bvh Bvh::build(const TriangleInput& input, const BvhOptions& options, BuildInfo*
       const Vec3 e = bin[i].max - bin[i].min;
       return e.x * e.y + e.y * e.z + e.z * e.x;
     };
+    // Triangle blocks of the leaves, in the order the collapse meets them (depth first).
+    auto& tri4 = bvh.tri4_;
+    tri4.reserve(bvh.tris_.size() / 2 + 1);
+    const auto make_blocks = [&](uint32_t first, uint32_t count) {
+      const uint32_t index = static_cast<uint32_t>(tri4.size());
+      for (uint32_t b = 0; b < count; b += kBlock) {
+        BvhTriangle4& blk = tri4.emplace_back();
+        for (uint32_t lane = 0; lane < kBlock; ++lane) {
+          const bool used = b + lane < count;
+          const BvhTriangle* t = used ? &bvh.tris_[first + b + lane] : nullptr;
+          blk.index[lane] = used ? first + b + lane : kNoHit;
+          for (int k = 0; k < 3; ++k)
+            for (int a = 0; a < 3; ++a)
+              blk.v[k][a][lane] = used ? t->v[3 * k + a] : std::numeric_limits<float>::quiet_NaN();
+        }
+      }
+      return index;
+    };
     const std::function<uint32_t(uint32_t)> collapse = [&](uint32_t b) -> uint32_t {
       uint32_t list[4];
       int k = 0;
@@ -529,7 +553,7 @@ Bvh Bvh::build(const TriangleInput& input, const BvhOptions& options, BuildInfo*
         const BvhNode& c = bin[list[i]];
         for (int a = 0; a < 3; ++a) w.b[0][a][i] = c.min[a], w.b[1][a][i] = c.max[a];
         w.count[i] = c.count;
-        w.child[i] = c.left_first;
+        w.child[i] = c.is_leaf() ? make_blocks(c.left_first, c.count) : c.left_first;
         if (!c.is_leaf()) {
           const uint32_t sub = collapse(list[i]);
           wide[index].child[i] = sub;  // (wide may have reallocated)
@@ -591,6 +615,7 @@ Aabb Bvh::bounds() const {
 
 size_t Bvh::memory_bytes() const {
   return nodes_.size() * sizeof(BvhNode) + wide_.size() * sizeof(BvhWideNode) + tris_.size() * sizeof(BvhTriangle) +
+         tri4_.size() * sizeof(BvhTriangle4) +
          prim_ids_.size() * sizeof(uint32_t) + transmittance_.size() * sizeof(Vec3);
 }
 

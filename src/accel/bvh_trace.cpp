@@ -13,6 +13,12 @@
 // 1 + 2 gamma(3) as in Ize 2013, "Robust BVH Ray Traversal" (JCGT 2(2)), so that rounding can
 // never make a ray miss a box that contains a triangle it hits (flat boxes of axis-aligned
 // triangles in particular). Triangles use the watertight test (watertight.h).
+//
+// Leaves are tested four triangles at a time (BvhTriangle4 blocks, SSE intersect_watertight4:
+// bit-identical to the scalar test; a block where some edge function is exactly zero goes to
+// the scalar test with its double-precision fallback). Child ordering follows Embree's BVH4
+// single-ray traversal: one hit child is taken directly, two with one compare, three or four
+// are pushed and insertion-sorted on the stack top; pushed subtrees are prefetched.
 #include <emmintrin.h>  // SSE2: x86-64 baseline
 #include <xmmintrin.h>  // _mm_prefetch
 
@@ -84,6 +90,13 @@ struct WideEntry {
   float t;
 };
 
+/// Starts fetching a pushed subtree's first cache lines (node bounds, or the first block).
+inline void prefetch_entry(const WideEntry& e, const BvhWideNode* wide, const BvhTriangle4* blocks) {
+  const char* p = e.count == 0 ? reinterpret_cast<const char*>(wide + e.child) : reinterpret_cast<const char*>(blocks + e.child);
+  _mm_prefetch(p, _MM_HINT_T0);
+  _mm_prefetch(p + 64, _MM_HINT_T0);
+}
+
 /// Worst case: three siblings pushed per level of a wide tree whose depth is at most half the
 /// binary depth (<= kMedianDepth + 32).
 constexpr int kWideStackSize = 3 * 64 + 8;
@@ -113,25 +126,6 @@ inline int intersect_wide(const BvhWideNode& n, const WideRay& r, __m128 tmax, _
   return _mm_movemask_ps(_mm_cmple_ps(tnear, tfar));
 }
 
-/// Collects the hit children of a wide node sorted by decreasing entry distance (so the
-/// nearest is last); returns how many.
-inline int sorted_hits(const BvhWideNode& n, int mask, __m128 tnear, WideEntry (&h)[4]) {
-  alignas(16) float d[4];
-  _mm_store_ps(d, tnear);
-  int cnt = 0;
-  for (int i = 0; i < 4; ++i) {
-    if (!((mask >> i) & 1)) continue;
-    const WideEntry e{n.child[i], n.count[i], d[i]};
-    int j = cnt++;
-    while (j > 0 && h[j - 1].t < e.t) {
-      h[j] = h[j - 1];
-      --j;
-    }
-    h[j] = e;
-  }
-  return cnt;
-}
-
 }  // namespace
 
 class BvhTraversal {
@@ -147,6 +141,9 @@ class BvhTraversal {
     if (intersect_box(bvh.nodes_[0], br, ray.tmin, ray.tmax) == kInf) return hit;
     const WideRay wr4(br, ray.tmin);
     const accel::WatertightRay wr(ray);
+    const accel::WatertightRay4 wr4t(wr);
+    const __m128 tmin4 = _mm_set1_ps(ray.tmin);
+    const BvhTriangle4* blocks = bvh.tri4_.data();
     float best_t = ray.tmax;
     uint32_t best = kNoHit;
     float bu = 0.0f, bv = 0.0f;
@@ -157,34 +154,95 @@ class BvhTraversal {
     for (;;) {
       if constexpr (kStats) ++stats.nodes_visited;
       if (next.count > 0) {
-        const uint32_t end = next.child + next.count;
         if constexpr (kStats) stats.triangles_tested += next.count;
-        for (uint32_t i = next.child; i < end; ++i) {
-          accel::TriHit th;
-          if (accel::intersect_watertight(wr, tris[i].v, ray.tmin, best_t, th)) {
-            best_t = th.t;
-            best = i;
-            bu = th.u;
-            bv = th.v;
+        const BvhTriangle4* blk = blocks + next.child;
+        const BvhTriangle4* const blk_end = blk + (next.count + 3) / 4;
+        for (; blk != blk_end; ++blk) {
+          __m128 t4, u4, v4;
+          const int mask = accel::intersect_watertight4(wr4t, blk->v, tmin4, _mm_set1_ps(best_t), t4, u4, v4);
+          if (mask == 0) continue;
+          if (mask > 0) {
+            // Same outcome as testing the lanes in order with t <= best: the smallest t wins,
+            // ties go to the later lane.
+            alignas(16) float ts[4], us[4], vs[4];
+            _mm_store_ps(ts, t4);
+            _mm_store_ps(us, u4);
+            _mm_store_ps(vs, v4);
+            for (int lane = 0; lane < 4; ++lane) {
+              if ((mask >> lane) & 1 && ts[lane] <= best_t) {
+                best_t = ts[lane];
+                best = blk->index[lane];
+                bu = us[lane];
+                bv = vs[lane];
+              }
+            }
+            continue;
+          }
+          // An edge function is exactly zero in some lane: the scalar test decides in double.
+          for (int lane = 0; lane < 4; ++lane) {
+            const uint32_t i = blk->index[lane];
+            if (i == kNoHit) continue;
+            accel::TriHit th;
+            if (accel::intersect_watertight(wr, tris[i].v, ray.tmin, best_t, th)) {
+              best_t = th.t;
+              best = i;
+              bu = th.u;
+              bv = th.v;
+            }
           }
         }
       } else {
         const BvhWideNode& n = wide[next.child];
         __m128 tnear;
         const int mask = intersect_wide(n, wr4, _mm_set1_ps(best_t), tnear);
-        if (mask != 0 && (mask & (mask - 1)) == 0) {  // one child hit: no sorting, no push
-          const int i = __builtin_ctz(static_cast<unsigned>(mask));
-          next = {n.child[i], n.count[i], 0.0f};
-          continue;
-        }
         if (mask != 0) {
-          WideEntry h[4];
-          const int cnt = sorted_hits(n, mask, tnear, h);
-          for (int i = 0; i < cnt - 1; ++i) {
-            if (h[i].count == 0) _mm_prefetch(reinterpret_cast<const char*>(wide + h[i].child), _MM_HINT_T0);
-            stack[sp++] = h[i];
+          // Nearest child next, the others pushed farthest first (Embree's BVH4 ordering: one
+          // and two hits without any loop, three or four by insertion into the stack top).
+          alignas(16) float d[4];
+          _mm_store_ps(d, tnear);
+          unsigned m = static_cast<unsigned>(mask);
+          const int c0 = __builtin_ctz(m);
+          m &= m - 1;
+          if (m == 0) {
+            next = {n.child[c0], n.count[c0], d[c0]};
+            continue;
           }
-          next = h[cnt - 1];
+          const int c1 = __builtin_ctz(m);
+          m &= m - 1;
+          WideEntry e0{n.child[c0], n.count[c0], d[c0]}, e1{n.child[c1], n.count[c1], d[c1]};
+          if (m == 0) {
+            // The farther child is fetched while the nearer subtree is traversed.
+            prefetch_entry(e0.t < e1.t ? e1 : e0, wide, blocks);
+            if (e0.t < e1.t) {
+              stack[sp++] = e1;
+              next = e0;
+            } else {
+              stack[sp++] = e0;
+              next = e1;
+            }
+            continue;
+          }
+          // Three or four: push all, insertion-sort the new entries by decreasing distance so
+          // the nearest ends on top, pop it.
+          const int base = sp;
+          stack[sp++] = e0;
+          stack[sp++] = e1;
+          do {
+            const int c = __builtin_ctz(m);
+            m &= m - 1;
+            stack[sp++] = {n.child[c], n.count[c], d[c]};
+          } while (m != 0);
+          for (int i = base; i < sp; ++i) prefetch_entry(stack[i], wide, blocks);
+          for (int i = base + 1; i < sp; ++i) {
+            const WideEntry e = stack[i];
+            int j = i;
+            while (j > base && stack[j - 1].t < e.t) {
+              stack[j] = stack[j - 1];
+              --j;
+            }
+            stack[j] = e;
+          }
+          next = stack[--sp];
           continue;
         }
       }
@@ -222,6 +280,9 @@ class BvhTraversal {
     const WideRay wr4(br, tmin);
     const __m128 tmax4 = _mm_set1_ps(tmax);
     const accel::WatertightRay wr(ray);
+    const accel::WatertightRay4 wr4t(wr);
+    const __m128 tmin4 = _mm_set1_ps(tmin);
+    const BvhTriangle4* blocks = bvh.tri4_.data();
 
     WideEntry stack[kWideStackSize];
     int sp = 0;
@@ -229,13 +290,34 @@ class BvhTraversal {
     for (;;) {
       if constexpr (kStats) ++stats.nodes_visited;
       if (next.count > 0) {
-        const uint32_t end = next.child + next.count;
         if constexpr (kStats) stats.triangles_tested += next.count;
-        for (uint32_t i = next.child; i < end; ++i) {
-          accel::TriHit th;
-          if (accel::intersect_watertight(wr, tris[i].v, tmin, tmax, th) && th.t > tmin && th.t < tmax) {
-            if (kAnyHit || trans == nullptr || accel::is_opaque(trans[i])) return Vec3{};
-            tr *= trans[i];
+        const BvhTriangle4* blk = blocks + next.child;
+        const BvhTriangle4* const blk_end = blk + (next.count + 3) / 4;
+        for (; blk != blk_end; ++blk) {
+          __m128 t4, u4, v4;
+          int mask = accel::intersect_watertight4(wr4t, blk->v, tmin4, tmax4, t4, u4, v4);
+          if (mask == 0) continue;
+          if (mask > 0) {
+            // Hits in the open interval (tmin, tmax) only.
+            mask &= _mm_movemask_ps(_mm_and_ps(_mm_cmpgt_ps(t4, tmin4), _mm_cmplt_ps(t4, tmax4)));
+            if (mask == 0) continue;
+            if (kAnyHit || trans == nullptr) return Vec3{};
+            for (int lane = 0; lane < 4; ++lane) {
+              if (!((mask >> lane) & 1)) continue;
+              const uint32_t i = blk->index[lane];
+              if (accel::is_opaque(trans[i])) return Vec3{};
+              tr *= trans[i];
+            }
+            continue;
+          }
+          for (int lane = 0; lane < 4; ++lane) {
+            const uint32_t i = blk->index[lane];
+            if (i == kNoHit) continue;
+            accel::TriHit th;
+            if (accel::intersect_watertight(wr, tris[i].v, tmin, tmax, th) && th.t > tmin && th.t < tmax) {
+              if (kAnyHit || trans == nullptr || accel::is_opaque(trans[i])) return Vec3{};
+              tr *= trans[i];
+            }
           }
         }
       } else {

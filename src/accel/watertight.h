@@ -11,6 +11,8 @@
 /// the paper) so that the sign decision on an edge is consistent for both neighbours.
 #pragma once
 
+#include <emmintrin.h>  // SSE2: x86-64 baseline
+
 #include <cmath>
 #include <cstdint>
 
@@ -90,6 +92,60 @@ inline bool intersect_watertight(const WatertightRay& r, const float* v, float t
   out.u = w1 * inv_det;
   out.v = w2 * inv_det;
   return true;
+}
+
+/// The per-ray constants of WatertightRay broadcast to four lanes (hoisted out of the leaf loop).
+struct WatertightRay4 {
+  int kx, ky, kz;
+  __m128 ox, oy, oz, sx, sy, sz;
+
+  explicit WatertightRay4(const WatertightRay& r)
+      : kx(r.kx), ky(r.ky), kz(r.kz), ox(_mm_set1_ps(r.ox)), oy(_mm_set1_ps(r.oy)), oz(_mm_set1_ps(r.oz)),
+        sx(_mm_set1_ps(r.sx)), sy(_mm_set1_ps(r.sy)), sz(_mm_set1_ps(r.sz)) {}
+};
+
+/// intersect_watertight() for four triangles at once, \p v[vertex][axis][lane] holding one
+/// coordinate of the four triangles (16-byte aligned; padding lanes NaN: never hit). The lanes
+/// are loaded straight from memory by the ray's axis permutation (no copy of the block). The very same float operations in the
+/// same order per lane (SSE arithmetic is IEEE single precision like the scalar code), so the
+/// results are bit-identical. When an edge function is exactly zero in some lane (which needs
+/// the double-precision fallback) the function returns -1 and the caller must test the group
+/// with the scalar function. Otherwise returns the lane mask of hits in [tmin, tmax] with their
+/// t, u, v.
+inline int intersect_watertight4(const WatertightRay4& r, const float (&v)[3][3][4], __m128 tmin, __m128 tmax,
+                                 __m128& t_out, __m128& u_out, __m128& v_out) {
+  const __m128 az = _mm_sub_ps(_mm_load_ps(v[0][r.kz]), r.oz), bz = _mm_sub_ps(_mm_load_ps(v[1][r.kz]), r.oz),
+               cz = _mm_sub_ps(_mm_load_ps(v[2][r.kz]), r.oz);
+  const __m128 ax = _mm_sub_ps(_mm_sub_ps(_mm_load_ps(v[0][r.kx]), r.ox), _mm_mul_ps(r.sx, az));
+  const __m128 ay = _mm_sub_ps(_mm_sub_ps(_mm_load_ps(v[0][r.ky]), r.oy), _mm_mul_ps(r.sy, az));
+  const __m128 bx = _mm_sub_ps(_mm_sub_ps(_mm_load_ps(v[1][r.kx]), r.ox), _mm_mul_ps(r.sx, bz));
+  const __m128 by = _mm_sub_ps(_mm_sub_ps(_mm_load_ps(v[1][r.ky]), r.oy), _mm_mul_ps(r.sy, bz));
+  const __m128 cx = _mm_sub_ps(_mm_sub_ps(_mm_load_ps(v[2][r.kx]), r.ox), _mm_mul_ps(r.sx, cz));
+  const __m128 cy = _mm_sub_ps(_mm_sub_ps(_mm_load_ps(v[2][r.ky]), r.oy), _mm_mul_ps(r.sy, cz));
+  const __m128 u = _mm_sub_ps(_mm_mul_ps(cx, by), _mm_mul_ps(cy, bx));
+  const __m128 w1 = _mm_sub_ps(_mm_mul_ps(ax, cy), _mm_mul_ps(ay, cx));
+  const __m128 w2 = _mm_sub_ps(_mm_mul_ps(bx, ay), _mm_mul_ps(by, ax));
+  const __m128 zero = _mm_setzero_ps();
+  // A zero edge function is recomputed in double by the scalar test, which may flip the sign
+  // of the other two as well: check before rejecting.
+  const __m128 on_edge = _mm_or_ps(_mm_or_ps(_mm_cmpeq_ps(u, zero), _mm_cmpeq_ps(w1, zero)), _mm_cmpeq_ps(w2, zero));
+  const __m128 nonneg = _mm_and_ps(_mm_and_ps(_mm_cmpge_ps(u, zero), _mm_cmpge_ps(w1, zero)), _mm_cmpge_ps(w2, zero));
+  const __m128 nonpos = _mm_and_ps(_mm_and_ps(_mm_cmple_ps(u, zero), _mm_cmple_ps(w1, zero)), _mm_cmple_ps(w2, zero));
+  const __m128 inside = _mm_or_ps(nonneg, nonpos);
+  const int inside_mask = _mm_movemask_ps(inside);
+  if (_mm_movemask_ps(on_edge) != 0) [[unlikely]] return -1;
+  if (inside_mask == 0) return 0;  // the common case: no lane inside
+  const __m128 det = _mm_add_ps(_mm_add_ps(u, w1), w2);
+  const __m128 t_scaled = _mm_add_ps(_mm_add_ps(_mm_mul_ps(u, _mm_mul_ps(r.sz, az)), _mm_mul_ps(w1, _mm_mul_ps(r.sz, bz))),
+                                     _mm_mul_ps(w2, _mm_mul_ps(r.sz, cz)));
+  const __m128 inv_det = _mm_div_ps(_mm_set1_ps(1.0f), det);
+  const __m128 t = _mm_mul_ps(t_scaled, inv_det);
+  const __m128 ok = _mm_and_ps(_mm_and_ps(inside, _mm_cmpneq_ps(det, zero)),
+                               _mm_and_ps(_mm_cmpge_ps(t, tmin), _mm_cmple_ps(t, tmax)));
+  t_out = t;
+  u_out = _mm_mul_ps(w1, inv_det);
+  v_out = _mm_mul_ps(w2, inv_det);
+  return _mm_movemask_ps(ok);
 }
 
 /// Unit geometric normal of a triangle as its winding gives it; zero for degenerate triangles.
