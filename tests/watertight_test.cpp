@@ -132,6 +132,47 @@ std::vector<Ray> rays_from_inside(const Mesh& m, Vec3 center, float inner_radius
   return rays;
 }
 
+// A transparent surface crossed exactly on an edge or vertex shared by several of its triangles
+// must attenuate a shadow ray once, not once per triangle (both accelerators, any winding).
+TEST(Watertight, TransparentSurfaceCountedOnceOnSharedEdgesAndVertices) {
+  for (const bool alternate : {false, true}) {
+    Mesh grid = test::make_grid(8, 0.25f, -1.0f, -1.0f, 0.0f, alternate);
+    // Flip the winding of every third triangle: the rule must not depend on consistent winding.
+    for (size_t t = 0; t < grid.triangle_count(); t += 3) std::swap(grid.indices[3 * t + 1], grid.indices[3 * t + 2]);
+    const std::vector<Vec3> half(grid.triangle_count(), Vec3{0.5f, 0.5f, 0.5f});
+    // Rays straight down through every vertex, edge midpoint and quad centre of the interior
+    // (dyadic coordinates: the edge functions are exactly zero on edges and vertices), and
+    // tilted rays through the same points.
+    std::vector<Ray> rays;
+    for (int j = 1; j < 16; ++j)
+      for (int i = 1; i < 16; ++i) {
+        const float x = -1.0f + 0.125f * static_cast<float>(i), z = -1.0f + 0.125f * static_cast<float>(j);
+        rays.push_back({{x, 1.0f, z}, 0.0f, {0.0f, -1.0f, 0.0f}, kInf});
+        rays.push_back({{x + 0.5f, 2.0f, z}, 0.0f, {-0.25f, -1.0f, 0.0f}, kInf});
+        rays.push_back({{x, 2.0f, z - 0.5f}, 0.0f, {0.0f, -1.0f, 0.25f}, kInf});
+      }
+    for (const AccelKind kind : {AccelKind::Bvh, AccelKind::Brute}) {
+      const auto tracer = build_tracer(kind, grid.input(half));
+      std::vector<Vec3> tr(rays.size());
+      tracer->transmittance(rays, tr);
+      for (size_t r = 0; r < rays.size(); ++r)
+        ASSERT_EQ(tr[r], (Vec3{0.5f, 0.5f, 0.5f}))
+            << (kind == AccelKind::Bvh ? "bvh" : "brute") << (alternate ? " alternating" : "") << " ray " << r << " org ("
+            << rays[r].org.x << ", " << rays[r].org.y << ", " << rays[r].org.z << ") gave " << tr[r].x;
+      // Opaque triangles stay closed: every one of these rays is blocked, and hits. (The axis-
+      // parallel rays run inside BVH boxes' face planes: 0 * inf slabs must not cull them.)
+      const auto opaque = build_tracer(kind, grid.input());
+      opaque->transmittance(rays, tr);
+      std::vector<Hit> hits(rays.size());
+      opaque->intersect(rays, hits);
+      for (size_t r = 0; r < rays.size(); ++r) {
+        ASSERT_EQ(tr[r], Vec3{}) << "opaque, ray " << r;
+        ASSERT_TRUE(hits[r].hit()) << "closest hit, ray " << r;
+      }
+    }
+  }
+}
+
 TEST(Watertight, RaysFromInsideClosedSphereAlwaysHit) {
   const Mesh sphere = test::make_sphere(32, 64, 1.0f);
   expect_all_hit(sphere, rays_from_inside(sphere, {}, 0.9f, 20000, 4), "sphere");

@@ -3,8 +3,6 @@
 /// baseline for tiny scenes. Uses the same watertight triangle test as the BVH.
 #pragma once
 
-#include <emmintrin.h>
-
 #include <vector>
 
 #include "accel/triangles.h"
@@ -26,13 +24,8 @@ class BruteTracer final : public Tracer {
   size_t memory_bytes() const override;
 
  private:
-  /// Four triangles in structure-of-arrays form: v[vertex][axis] holds that coordinate of
-  /// the four triangles (padding lanes are NaN and never hit).
-  struct Group4 {
-    __m128 v[3][3];
-  };
   std::vector<BvhTriangle> tris_;     ///< non-degenerate triangles, input order
-  std::vector<Group4, detail::AlignedAllocator<Group4>> groups_;  ///< tris_ in groups of 4
+  std::vector<BvhTriangle4, detail::AlignedAllocator<BvhTriangle4>> groups_;  ///< tris_ in blocks of 4 (index = into tris_)
   std::vector<uint32_t> ids_;        ///< scene index of each entry of tris_
   std::vector<Vec3> transmittance_;  ///< per entry of tris_; empty = all opaque
 };

@@ -8,8 +8,11 @@
 // binary nodes (measured on bunny: 25 -> 14 node visits and ~1.35x Mrays/s for bounce rays).
 //
 // Ray/box: slab test with a precomputed reciprocal direction; near and far planes are chosen
-// once per ray from the direction signs. Zero direction components get a finite +-FLT_MAX
-// reciprocal (see safe_rcp), so no NaN can arise from 0 * inf. The far distance is scaled by
+// once per ray from the direction signs. A zero direction component has an infinite reciprocal;
+// when the origin lies exactly in that slab's plane, (bound - org) * rcp is 0 * inf = NaN, and
+// the min/max chains are ordered so that a NaN slab is ignored (SSE min/max return their second
+// operand when either is NaN): a ray running inside a box's face plane is inside that slab, as
+// the closed box and the edge-inclusive triangle test need. The far distance is scaled by
 // 1 + 2 gamma(3) as in Ize 2013, "Robust BVH Ray Traversal" (JCGT 2(2)), so that rounding can
 // never make a ray miss a box that contains a triangle it hits (flat boxes of axis-aligned
 // triangles in particular). Triangles use the watertight test (watertight.h).
@@ -39,15 +42,10 @@ namespace {
 /// 1 + 2 * gamma(3), gamma(n) = n eps / (1 - n eps), eps = 2^-24 (Ize 2013).
 constexpr float kFarScale = 1.0f + 2.0f * (3.0f * 0x1p-24f) / (1.0f - 3.0f * 0x1p-24f);
 
-/// Reciprocal of a direction component that is never infinite: 1/0 (or 1/denormal) becomes
-/// +-FLT_MAX with the component's sign. Then (bound - org) * rcp is 0 (not 0 * inf = NaN) when
-/// the origin lies exactly on a slab plane, and +-large otherwise, so the slab test needs no NaN
-/// handling at all: a ray lying in a box's face plane counts as inside (the face is part of
-/// the closed box), which is what the edge-inclusive watertight triangle test needs.
-inline float safe_rcp(float d) {
-  const float r = 1.0f / d;
-  return std::isfinite(r) ? r : std::copysign(std::numeric_limits<float>::max(), d);
-}
+/// max / min that ignore a NaN first operand (the semantics of SSE maxss / minss with the
+/// possibly-NaN value first): a slab with 0 * inf = NaN distances does not restrict the ray.
+inline float max_ignore_nan(float maybe_nan, float t) { return maybe_nan > t ? maybe_nan : t; }
+inline float min_ignore_nan(float maybe_nan, float t) { return maybe_nan < t ? maybe_nan : t; }
 
 /// Per-ray constants of the box test, broadcast for the SSE sibling test.
 struct BoxRay {
@@ -58,7 +56,7 @@ struct BoxRay {
 
   explicit BoxRay(const Ray& ray) {
     sox = ray.org.x, soy = ray.org.y, soz = ray.org.z;
-    srx = safe_rcp(ray.dir.x), sry = safe_rcp(ray.dir.y), srz = safe_rcp(ray.dir.z);
+    srx = 1.0f / ray.dir.x, sry = 1.0f / ray.dir.y, srz = 1.0f / ray.dir.z;  // +-inf for +-0
     ox = _mm_set1_ps(sox), oy = _mm_set1_ps(soy), oz = _mm_set1_ps(soz);
     rx = _mm_set1_ps(srx), ry = _mm_set1_ps(sry), rz = _mm_set1_ps(srz);
     tmin = _mm_set1_ps(ray.tmin);
@@ -71,8 +69,14 @@ inline float intersect_box(const BvhNode& n, const BoxRay& r, float tmin, float 
   const float tx1 = (n.min.x - r.sox) * r.srx, tx2 = (n.max.x - r.sox) * r.srx;
   const float ty1 = (n.min.y - r.soy) * r.sry, ty2 = (n.max.y - r.soy) * r.sry;
   const float tz1 = (n.min.z - r.soz) * r.srz, tz2 = (n.max.z - r.soz) * r.srz;
-  const float tnear = std::max(std::max(std::min(tx1, tx2), std::min(ty1, ty2)), std::max(std::min(tz1, tz2), tmin));
-  const float tfar = std::min(std::min(std::max(tx1, tx2), std::max(ty1, ty2)), std::min(std::max(tz1, tz2), tmax)) * kFarScale;
+  // Near/far of each slab by the direction's sign (rcp is +-inf, never NaN, for a zero component).
+  const bool px = r.srx >= 0.0f, py = r.sry >= 0.0f, pz = r.srz >= 0.0f;
+  float tnear = max_ignore_nan(px ? tx1 : tx2, tmin);
+  tnear = max_ignore_nan(py ? ty1 : ty2, tnear);
+  tnear = max_ignore_nan(pz ? tz1 : tz2, tnear);
+  float tfar = min_ignore_nan(px ? tx2 : tx1, tmax);
+  tfar = min_ignore_nan(py ? ty2 : ty1, tfar);
+  tfar = min_ignore_nan(pz ? tz2 : tz1, tfar) * kFarScale;
   return tnear <= tfar ? tnear : kInf;
 }
 
@@ -121,8 +125,9 @@ inline int intersect_wide(const BvhWideNode& n, const WideRay& r, __m128 tmax, _
   const __m128 txf = _mm_mul_ps(_mm_sub_ps(_mm_load_ps(n.b[1 - r.nx][0]), r.ox), r.rx);
   const __m128 tyf = _mm_mul_ps(_mm_sub_ps(_mm_load_ps(n.b[1 - r.ny][1]), r.oy), r.ry);
   const __m128 tzf = _mm_mul_ps(_mm_sub_ps(_mm_load_ps(n.b[1 - r.nz][2]), r.oz), r.rz);
-  tnear = _mm_max_ps(_mm_max_ps(txn, tyn), _mm_max_ps(tzn, r.tmin));
-  const __m128 tfar = _mm_mul_ps(_mm_min_ps(_mm_min_ps(txf, tyf), _mm_min_ps(tzf, tmax)), _mm_set1_ps(kFarScale));
+  // NaN (origin in a slab plane, zero direction component) first in every max/min: ignored.
+  tnear = _mm_max_ps(tzn, _mm_max_ps(tyn, _mm_max_ps(txn, r.tmin)));
+  const __m128 tfar = _mm_mul_ps(_mm_min_ps(tzf, _mm_min_ps(tyf, _mm_min_ps(txf, tmax))), _mm_set1_ps(kFarScale));
   return _mm_movemask_ps(_mm_cmple_ps(tnear, tfar));
 }
 
@@ -142,7 +147,6 @@ class BvhTraversal {
     const WideRay wr4(br, ray.tmin);
     const accel::WatertightRay wr(ray);
     const accel::WatertightRay4 wr4t(wr);
-    const __m128 tmin4 = _mm_set1_ps(ray.tmin);
     const BvhTriangle4* blocks = bvh.tri4_.data();
     float best_t = ray.tmax;
     uint32_t best = kNoHit;
@@ -157,40 +161,13 @@ class BvhTraversal {
         if constexpr (kStats) stats.triangles_tested += next.count;
         const BvhTriangle4* blk = blocks + next.child;
         const BvhTriangle4* const blk_end = blk + (next.count + 3) / 4;
-        for (; blk != blk_end; ++blk) {
-          __m128 t4, u4, v4;
-          const int mask = accel::intersect_watertight4(wr4t, blk->v, tmin4, _mm_set1_ps(best_t), t4, u4, v4);
-          if (mask == 0) continue;
-          if (mask > 0) {
-            // Same outcome as testing the lanes in order with t <= best: the smallest t wins,
-            // ties go to the later lane.
-            alignas(16) float ts[4], us[4], vs[4];
-            _mm_store_ps(ts, t4);
-            _mm_store_ps(us, u4);
-            _mm_store_ps(vs, v4);
-            for (int lane = 0; lane < 4; ++lane) {
-              if ((mask >> lane) & 1 && ts[lane] <= best_t) {
-                best_t = ts[lane];
-                best = blk->index[lane];
-                bu = us[lane];
-                bv = vs[lane];
-              }
-            }
-            continue;
-          }
-          // An edge function is exactly zero in some lane: the scalar test decides in double.
-          for (int lane = 0; lane < 4; ++lane) {
-            const uint32_t i = blk->index[lane];
-            if (i == kNoHit) continue;
-            accel::TriHit th;
-            if (accel::intersect_watertight(wr, tris[i].v, ray.tmin, best_t, th)) {
-              best_t = th.t;
-              best = i;
-              bu = th.u;
-              bv = th.v;
-            }
-          }
-        }
+        const auto closer = [&](uint32_t i, float t, float u, float v) {
+          // Ties go to the later lane / later triangle (t <= best), as the brute-force oracle does.
+          if (t <= best_t) best_t = t, best = i, bu = u, bv = v;
+          return false;
+        };
+        for (; blk != blk_end; ++blk)
+          accel::test_block(wr, wr4t, *blk, tris, ray.tmin, best_t, accel::closed_edges, closer);
       } else {
         const BvhWideNode& n = wide[next.child];
         __m128 tnear;
@@ -281,7 +258,6 @@ class BvhTraversal {
     const __m128 tmax4 = _mm_set1_ps(tmax);
     const accel::WatertightRay wr(ray);
     const accel::WatertightRay4 wr4t(wr);
-    const __m128 tmin4 = _mm_set1_ps(tmin);
     const BvhTriangle4* blocks = bvh.tri4_.data();
 
     WideEntry stack[kWideStackSize];
@@ -293,33 +269,21 @@ class BvhTraversal {
         if constexpr (kStats) stats.triangles_tested += next.count;
         const BvhTriangle4* blk = blocks + next.child;
         const BvhTriangle4* const blk_end = blk + (next.count + 3) / 4;
-        for (; blk != blk_end; ++blk) {
-          __m128 t4, u4, v4;
-          int mask = accel::intersect_watertight4(wr4t, blk->v, tmin4, tmax4, t4, u4, v4);
-          if (mask == 0) continue;
-          if (mask > 0) {
-            // Hits in the open interval (tmin, tmax) only.
-            mask &= _mm_movemask_ps(_mm_and_ps(_mm_cmpgt_ps(t4, tmin4), _mm_cmplt_ps(t4, tmax4)));
-            if (mask == 0) continue;
-            if (kAnyHit || trans == nullptr) return Vec3{};
-            for (int lane = 0; lane < 4; ++lane) {
-              if (!((mask >> lane) & 1)) continue;
-              const uint32_t i = blk->index[lane];
-              if (accel::is_opaque(trans[i])) return Vec3{};
-              tr *= trans[i];
-            }
-            continue;
-          }
-          for (int lane = 0; lane < 4; ++lane) {
-            const uint32_t i = blk->index[lane];
-            if (i == kNoHit) continue;
-            accel::TriHit th;
-            if (accel::intersect_watertight(wr, tris[i].v, tmin, tmax, th) && th.t > tmin && th.t < tmax) {
-              if (kAnyHit || trans == nullptr || accel::is_opaque(trans[i])) return Vec3{};
-              tr *= trans[i];
-            }
-          }
-        }
+        // Hits in the open interval (tmin, tmax) only. Transparent triangles are half-open, so a
+        // ray exactly on an edge between two of them counts the surface once; opaque ones stay
+        // closed (a ray grazing an opaque silhouette edge is blocked).
+        const auto rule_of = [&](uint32_t i) {
+          return kAnyHit || trans == nullptr || accel::is_opaque(trans[i]) ? accel::EdgeRule::Closed
+                                                                          : accel::EdgeRule::HalfOpen;
+        };
+        const auto crossed = [&](uint32_t i, float t, float, float) {
+          if (!(t > tmin && t < tmax)) return false;
+          if (kAnyHit || trans == nullptr || accel::is_opaque(trans[i])) return true;
+          tr *= trans[i];
+          return false;
+        };
+        for (; blk != blk_end; ++blk)
+          if (accel::test_block(wr, wr4t, *blk, tris, tmin, tmax, rule_of, crossed)) return Vec3{};
       } else {
         const BvhWideNode& n = wide[next.child];
         __m128 tnear;

@@ -15,7 +15,9 @@
 
 #include <cmath>
 #include <cstdint>
+#include <limits>
 
+#include "specula/bvh.h"
 #include "specula/math.h"
 #include "specula/ray.h"
 
@@ -55,12 +57,36 @@ struct TriHit {
   float t, u, v;
 };
 
+/// How a ray that crosses a triangle exactly on an edge or vertex (an edge function exactly
+/// zero, even in double) is counted.
+enum class EdgeRule {
+  /// Closed triangles: every triangle sharing the edge reports the hit. Right for closest-hit
+  /// and occlusion queries (any one of them will do).
+  Closed,
+  /// Half-open triangles, as rasterizers' top-left rule: of the triangles sharing an edge or a
+  /// vertex, exactly one reports the hit, so a transmittance product counts a surface once.
+  HalfOpen,
+};
+
+namespace detail {
+/// Whether the half-open rule gives a zero-function edge from (x0, y0) to (x1, y1) (in the
+/// triangle's own vertex order, projected) to this triangle. \p det_sign normalises the
+/// orientation: two triangles on either side of a shared edge then see it in opposite
+/// directions, and exactly one of the two directions is accepted. Coordinates of shared
+/// vertices are bit-identical in both triangles, and float subtraction is exactly
+/// antisymmetric, so the two decisions are exact complements.
+inline bool owns_edge(float x0, float y0, float x1, float y1, float det_sign) {
+  const float ex = (x1 - x0) * det_sign, ey = (y1 - y0) * det_sign;
+  return ey > 0.0f || (ey == 0.0f && ex > 0.0f);
+}
+}  // namespace detail
+
 /// Tests the triangle with vertices v[0..2], v[3..5], v[6..8] against the ray; accepts hits
 /// with tmin <= t <= tmax. On success (u, v) are the barycentrics of vertices 1 and 2.
 /// NaN-safe: non-finite intermediate values miss. Brute force and BVH both call exactly this
 /// function on the same floats, so they agree bit for bit.
 inline bool intersect_watertight(const WatertightRay& r, const float* v, float tmin, float tmax,
-                                 TriHit& out) {
+                                 TriHit& out, EdgeRule rule = EdgeRule::Closed) {
   const int kx = r.kx, ky = r.ky, kz = r.kz;
   const float az = v[kz] - r.oz, bz = v[3 + kz] - r.oz, cz = v[6 + kz] - r.oz;
   const float ax = (v[kx] - r.ox) - r.sx * az, ay = (v[ky] - r.oy) - r.sy * az;
@@ -83,6 +109,12 @@ inline bool intersect_watertight(const WatertightRay& r, const float* v, float t
   if (!(all_nonneg || all_nonpos)) return false;
   const float det = u + w1 + w2;
   if (!(det != 0.0f)) return false;  // degenerate (or edge-on) triangle, or NaN
+  if (rule == EdgeRule::HalfOpen && (u == 0.0f || w1 == 0.0f || w2 == 0.0f)) [[unlikely]] {
+    const float sign = det > 0.0f ? 1.0f : -1.0f;
+    if (u == 0.0f && !detail::owns_edge(bx, by, cx, cy, sign)) return false;
+    if (w1 == 0.0f && !detail::owns_edge(cx, cy, ax, ay, sign)) return false;
+    if (w2 == 0.0f && !detail::owns_edge(ax, ay, bx, by, sign)) return false;
+  }
 
   const float t_scaled = u * (r.sz * az) + w1 * (r.sz * bz) + w2 * (r.sz * cz);
   const float inv_det = 1.0f / det;
@@ -147,6 +179,52 @@ inline int intersect_watertight4(const WatertightRay4& r, const float (&v)[3][3]
   v_out = _mm_mul_ps(w2, inv_det);
   return _mm_movemask_ps(ok);
 }
+
+/// Fills \p blk with triangles [first, first + count) of \p tris (count <= 4); lane i gets
+/// index first + i, the unused lanes NaN vertices and index kNoHit.
+inline void fill_block(BvhTriangle4& blk, const BvhTriangle* tris, uint32_t first, uint32_t count) {
+  for (uint32_t lane = 0; lane < 4; ++lane) {
+    const bool used = lane < count;
+    blk.index[lane] = used ? first + lane : kNoHit;
+    for (int k = 0; k < 3; ++k)
+      for (int a = 0; a < 3; ++a)
+        blk.v[k][a][lane] = used ? tris[first + lane].v[3 * k + a] : std::numeric_limits<float>::quiet_NaN();
+  }
+}
+
+/// Tests one block of four triangles and calls on_hit(index, t, u, v) for each hit lane in lane
+/// order, as testing the lanes one by one with intersect_watertight() would: \p tmax is read
+/// again before every scalar lane test, so a visitor that shrinks it (closest hit) sees the
+/// same results as a scalar loop. on_hit returns true to stop; so does this function then.
+/// \p tris resolves block indices for the scalar fallback (edge functions exactly zero), where
+/// rule_of(index) gives the EdgeRule of that triangle.
+template <class RuleOf, class OnHit>
+inline bool test_block(const WatertightRay& wr, const WatertightRay4& wr4, const BvhTriangle4& blk,
+                       const BvhTriangle* tris, float tmin, const float& tmax, RuleOf&& rule_of, OnHit&& on_hit) {
+  __m128 t4, u4, v4;
+  const int mask = intersect_watertight4(wr4, blk.v, _mm_set1_ps(tmin), _mm_set1_ps(tmax), t4, u4, v4);
+  if (mask == 0) return false;
+  if (mask > 0) {
+    alignas(16) float ts[4], us[4], vs[4];
+    _mm_store_ps(ts, t4);
+    _mm_store_ps(us, u4);
+    _mm_store_ps(vs, v4);
+    for (int lane = 0; lane < 4; ++lane)
+      if ((mask >> lane) & 1 && on_hit(blk.index[lane], ts[lane], us[lane], vs[lane])) return true;
+    return false;
+  }
+  // An edge function is exactly zero in some lane: the scalar test decides in double.
+  for (int lane = 0; lane < 4; ++lane) {
+    const uint32_t i = blk.index[lane];
+    if (i == kNoHit) continue;
+    TriHit th;
+    if (intersect_watertight(wr, tris[i].v, tmin, tmax, th, rule_of(i)) && on_hit(i, th.t, th.u, th.v)) return true;
+  }
+  return false;
+}
+
+/// rule_of for test_block(): every triangle closed.
+inline EdgeRule closed_edges(uint32_t) { return EdgeRule::Closed; }
 
 /// Unit geometric normal of a triangle as its winding gives it; zero for degenerate triangles.
 inline Vec3 geometric_normal(const float* v) {
