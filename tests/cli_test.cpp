@@ -68,7 +68,7 @@ constexpr const char* kQuadObj =
 }  // namespace
 
 TEST_F(Cli, HelpOnEverySubcommand) {
-  for (const char* sub : {"", "render ", "trace ", "info ", "bench ", "bench trace "}) {
+  for (const char* sub : {"", "render ", "trace ", "info ", "bench ", "bench trace ", "bench render "}) {
     const RunResult r = run_cli(std::string(sub) + "--help", dir_);
     EXPECT_EQ(r.exit_code, 0) << sub;
     EXPECT_NE(r.out.find("Usage"), std::string::npos) << sub << r.out;
@@ -146,4 +146,20 @@ TEST_F(Cli, InfoDescribesAMesh) {
   ASSERT_EQ(r.exit_code, 0) << r.err;
   EXPECT_NE(r.out.find("triangles  2"), std::string::npos) << r.out;
   EXPECT_NE(r.out.find("bounds     [-1 -1 0] - [1 1 0]"), std::string::npos) << r.out;
+}
+
+TEST_F(Cli, BenchRenderPrintsFrameRatesAndSeedFigures) {
+  // A tiny size, so no seed row: the pool's own cameras are timed and the table is printed.
+  const RunResult r = run_cli("bench render --cameras water,bunny --sizes 32x24,16x12 --frames 1", dir_);
+  ASSERT_EQ(r.exit_code, 0) << r.err;
+  EXPECT_NE(r.out.find("seed 000 GPU fps"), std::string::npos) << r.out;
+  EXPECT_NE(r.out.find("water      32x24"), std::string::npos) << r.out;
+  EXPECT_NE(r.out.find("bunny      16x12"), std::string::npos) << r.out;
+  EXPECT_EQ(r.out.find("parallel"), std::string::npos) << r.out;
+  const RunResult bad = run_cli("bench render --sizes 640by480", dir_);
+  EXPECT_NE(bad.exit_code, 0);
+  EXPECT_NE(bad.err.find("--sizes: '640by480' is not WxH"), std::string::npos) << bad.err;
+  const RunResult cam = run_cli("bench render --cameras nope --sizes 8x8 --frames 1", dir_);
+  EXPECT_NE(cam.exit_code, 0);
+  EXPECT_NE(cam.err.find("nope"), std::string::npos) << cam.err;
 }

@@ -15,6 +15,7 @@
 #include <tbb/task_arena.h>
 
 #include "commands.h"
+#include "core/hash.h"
 #include "specula/accel.h"
 #include "specula/bvh.h"
 #include "specula/error.h"
@@ -36,12 +37,8 @@ struct RaySet {
   std::vector<Ray> rays;
 };
 
-/// Deterministic per-pixel random numbers (PCG hash), so every run traces the same rays.
-uint32_t pcg_hash(uint32_t v) {
-  const uint32_t state = v * 747796405u + 2891336453u;
-  const uint32_t word = ((state >> ((state >> 28u) + 4u)) ^ state) * 277803737u;
-  return (word >> 22u) ^ word;
-}
+/// Deterministic per-pixel random numbers (the project's one integer hash), so every run
+/// traces the same rays.
 float to_unit_float(uint32_t v) { return static_cast<float>(v >> 8) * (1.0f / 16777216.0f); }
 
 std::vector<RaySet> make_ray_sets(const Scene& scene, const Tracer& tracer, int width, int height) {
@@ -90,8 +87,8 @@ std::vector<RaySet> make_ray_sets(const Scene& scene, const Tracer& tracer, int 
       secondary.rays.push_back(refr);
     }
     // Cosine-weighted hemisphere around n (Malley's method), seeded by the pixel index.
-    const uint32_t seed = pcg_hash(static_cast<uint32_t>(i));
-    const float u1 = to_unit_float(seed), u2 = to_unit_float(pcg_hash(seed ^ 0x9E3779B9u));
+    const uint32_t seed = hash_u32(static_cast<uint32_t>(i));
+    const float u1 = to_unit_float(seed), u2 = to_unit_float(hash_u32(seed ^ 0x9E3779B9u));
     const float r = std::sqrt(u1), phi = 2.0f * kPi * u2;
     Vec3 tx, ty;
     orthonormal_basis(n, tx, ty);
@@ -108,10 +105,6 @@ std::vector<RaySet> make_ray_sets(const Scene& scene, const Tracer& tracer, int 
   return sets;
 }
 
-double median(std::vector<double> v) {
-  std::sort(v.begin(), v.end());
-  return v.empty() ? 0.0 : v[v.size() / 2];
-}
 
 /// Median milliseconds of \p repeat calls of \p fn (after one warm-up call).
 double time_ms(int repeat, const std::function<void()>& fn) {

@@ -21,14 +21,12 @@
 #include "specula/timer.h"
 
 namespace specula::cli {
-namespace {
 
 double median(std::vector<double> v) {
   std::sort(v.begin(), v.end());
   const size_t n = v.size();
   return n == 0 ? 0.0 : (n % 2 ? v[n / 2] : 0.5 * (v[n / 2 - 1] + v[n / 2]));
 }
-
 
 void print_build(const char* accel, const BuildInfo& b) {
   std::printf("build    %9.2f ms  (%s: %s nodes, %s leaves, depth %u, SAH cost %.2f, %.2f MiB)\n",
@@ -42,6 +40,8 @@ Scene load_timed(const std::string& spec, const LoadOptions& load, double& ms) {
   ms = t.ms();
   return scene;
 }
+
+namespace {
 
 /// A progress line on stderr, only when stderr is a terminal and the work has taken > 1 s.
 class ProgressLine {

@@ -3,10 +3,16 @@
 #pragma once
 
 #include <string>
+#include <vector>
 
 #include "specula/accel.h"
 #include "specula/load.h"
 #include "specula/render.h"
+#include "specula/voxelize.h"
+
+namespace CLI {
+class App;
+}
 
 namespace specula::cli {
 
@@ -49,6 +55,31 @@ struct InfoOptions {
   LoadOptions load;
 };
 
+/// `specula voxelize` (apps/specula/voxelize_command.cpp).
+struct VoxelizeCommandOptions {
+  std::string scene;
+  int depth = 0;                   ///< required unless --table
+  std::string tests = "aabb,plane,sat";
+  std::string sat_at = "leaf";
+  std::string traversal;           ///< "octree" | "range"; empty = range (octree for --sat-at all)
+  bool vertex_shortcut = true;
+  bool attributes = true;
+  int threads = 0;
+  uint64_t memory_limit = 0;       ///< 0 = default (half the physical memory)
+  bool no_memory_limit = false;
+  bool table = false;              ///< seed 000's build-time table, depths 1..(depth or 8)
+  int repeat = 1;                  ///< runs per measurement; the best time is printed
+  std::string format;              ///< "" | "xyz"
+  std::string output;              ///< -o FILE (.xyz)
+  LoadOptions load;
+};
+
+/// `specula voxelize`: voxelize a scene, print counts, times, bytes; optionally write the
+/// voxels (.xyz) or print seed 000's build-time table.
+int voxelize(const VoxelizeCommandOptions& options);
+/// Registers the `voxelize` subcommand (its options and --help text) on \p app.
+CLI::App* add_voxelize_command(CLI::App& app, VoxelizeCommandOptions& options);
+
 /// `specula render`: load, build, render, write the image (+ AOVs), print timings.
 int render(const RenderOptions& options);
 /// `specula trace`: trace a ray file, print "t prim" or "miss" per ray.
@@ -59,5 +90,26 @@ int info(const InfoOptions& options);
 /// `specula bench trace`: build ms; Mrays/s for primary, shadow, secondary (reflection /
 /// refraction) and diffuse bounce rays, one thread and all threads; Embree side by side.
 int bench_trace(const BenchTraceOptions& options);
+
+/// Options of `specula bench render`.
+struct BenchRenderOptions {
+  std::string scene = "pool";
+  std::string cameras;                        ///< comma-separated; empty = every camera of the scene
+  std::string sizes = "640x480,1920x1200";    ///< comma-separated WxH
+  std::string accel = "bvh";
+  int frames = 5;                             ///< frames per cell; the median is printed
+  specula::RenderOptions render;              ///< threads, max reflect / refract
+  BvhOptions bvh;
+  LoadOptions load;
+};
+
+/// `specula bench render`: Whitted frame time, fps and Mrays/s per camera and image size; for
+/// the pool scene, seed 000's GPU frame rates beside ours.
+int bench_render(const BenchRenderOptions& options);
+
+// Helpers shared by the subcommands (commands.cpp).
+double median(std::vector<double> v);
+void print_build(const char* accel, const BuildInfo& b);
+Scene load_timed(const std::string& spec, const LoadOptions& load, double& ms);
 
 }  // namespace specula::cli

@@ -4,6 +4,8 @@
 //   specula trace  SCENE --rays FILE [--stats] [--repeat N] [--threads N]
 //   specula info   SCENE
 //   specula bench  trace [--scene pool] [--mesh FILE]
+//   specula bench  render [--scene pool] [--cameras a,b] [--sizes 640x480,1920x1200] [--frames N]
+//   specula voxelize SCENE --depth D [--tests aabb,plane,sat] [--sat-at leaf|all] [--table] ...
 //
 // Argument parsing is CLI11; every subcommand throws specula::Error for user errors, which
 // main prints as "specula: error: ..." with exit code 1 (2 for usage errors).
@@ -43,6 +45,22 @@ void add_bvh_options(CLI::App* app, BvhOptions& bvh) {
       ->capture_default_str();
 }
 
+/// --accel, --max-reflect, --max-refract, --threads: what every Whitted rendering command takes.
+void add_integrator_options(CLI::App* app, std::string& accel, specula::RenderOptions& ro) {
+  app->add_option("--accel", accel, "acceleration structure: bvh or brute")
+      ->check(CLI::IsMember({"bvh", "brute"}))
+      ->capture_default_str();
+  app->add_option("--max-reflect", ro.max_reflect, "maximum mirror bounces per path")
+      ->check(CLI::Range(0, 64))
+      ->capture_default_str();
+  app->add_option("--max-refract", ro.max_refract, "maximum refractions per path")
+      ->check(CLI::Range(0, 64))
+      ->capture_default_str();
+  app->add_option("--threads", ro.threads, "worker threads (0 = all cores)")
+      ->check(CLI::Range(0, 1024))
+      ->capture_default_str();
+}
+
 }  // namespace
 
 int main(int argc, char** argv) {
@@ -67,18 +85,7 @@ int main(int argc, char** argv) {
   render_cmd->add_option("--height", render.render.height, "image height in pixels")
       ->check(CLI::Range(1, 32768))
       ->capture_default_str();
-  render_cmd->add_option("--accel", render.accel, "acceleration structure: bvh or brute")
-      ->check(CLI::IsMember({"bvh", "brute"}))
-      ->capture_default_str();
-  render_cmd->add_option("--max-reflect", render.render.max_reflect, "maximum mirror bounces per path")
-      ->check(CLI::Range(0, 64))
-      ->capture_default_str();
-  render_cmd->add_option("--max-refract", render.render.max_refract, "maximum refractions per path")
-      ->check(CLI::Range(0, 64))
-      ->capture_default_str();
-  render_cmd->add_option("--threads", render.render.threads, "worker threads (0 = all cores)")
-      ->check(CLI::Range(0, 1024))
-      ->capture_default_str();
+  add_integrator_options(render_cmd, render.accel, render.render);
   render_cmd->add_option("--aov", render.aovs,
                          "extra outputs written beside the image: depth,normal,prim,cost "
                          "(cost = BVH nodes visited per pixel, as a heat map)");
@@ -122,7 +129,7 @@ int main(int argc, char** argv) {
   add_data_option(info_cmd, info.load);
 
   // bench
-  CLI::App* bench_cmd = app.add_subcommand("bench", "Benchmarks (see 'specula bench trace --help')");
+  CLI::App* bench_cmd = app.add_subcommand("bench", "Benchmarks: 'specula bench trace' (ray tracing throughput, vs Embree) and 'specula bench render' (frame rates)");
   bench_cmd->require_subcommand(1);
   cli::BenchTraceOptions bench;
   CLI::App* bench_trace_cmd = bench_cmd->add_subcommand(
@@ -147,6 +154,28 @@ int main(int argc, char** argv) {
   add_data_option(bench_trace_cmd, bench.load);
   add_bvh_options(bench_trace_cmd, bench.bvh);
 
+  cli::BenchRenderOptions bench_render;
+  CLI::App* bench_render_cmd = bench_cmd->add_subcommand(
+      "render",
+      "Whitted frame time, fps and Mrays/s per camera and image size (median of --frames); for the "
+      "pool scene, seed 000's GPU frame rates beside ours");
+  bench_render_cmd->add_option("--scene", bench_render.scene, kSceneHelp)->capture_default_str();
+  bench_render_cmd->add_option("--cameras", bench_render.cameras,
+                               "comma-separated camera names (default: every camera of the scene)");
+  bench_render_cmd->add_option("--sizes", bench_render.sizes, "comma-separated image sizes WxH")
+      ->capture_default_str();
+  bench_render_cmd->add_option("--frames", bench_render.frames, "frames per cell (median printed)")
+      ->check(CLI::Range(1, 1000))
+      ->capture_default_str();
+  add_integrator_options(bench_render_cmd, bench_render.accel, bench_render.render);
+  add_data_option(bench_render_cmd, bench_render.load);
+  add_bvh_options(bench_render_cmd, bench_render.bvh);
+
+  // voxelize
+  cli::VoxelizeCommandOptions voxelize;
+  CLI::App* voxelize_cmd = cli::add_voxelize_command(app, voxelize);
+  add_data_option(voxelize_cmd, voxelize.load);
+
   try {
     app.parse(argc, argv);
   } catch (const CLI::ParseError& e) {
@@ -158,6 +187,8 @@ int main(int argc, char** argv) {
     if (trace_cmd->parsed()) return cli::trace(trace);
     if (info_cmd->parsed()) return cli::info(info);
     if (bench_trace_cmd->parsed()) return cli::bench_trace(bench);
+    if (bench_render_cmd->parsed()) return cli::bench_render(bench_render);
+    if (voxelize_cmd->parsed()) return cli::voxelize(voxelize);
   } catch (const specula::Error& e) {
     std::fprintf(stderr, "specula: error: %s\n", e.what());
     return 1;
