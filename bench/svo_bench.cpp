@@ -1,0 +1,130 @@
+// Google Benchmark: sparse voxel octree vs dense voxel grid traversal, one thread, on a
+// synthetic sphere shell (owner: voxel tracers).
+//   build/release/specula_bench --benchmark_filter='Svo|VoxelGrid'
+// Rays: 640 x 480 primary rays of a pinhole camera looking at the shell (coherent, in 8 x 8
+// tiles as the integrator traces them), and random rays through the grid (incoherent).
+#include <benchmark/benchmark.h>
+
+#include <cmath>
+#include <map>
+#include <memory>
+#include <random>
+#include <vector>
+
+#include "specula/svo.h"
+#include "specula/voxel_grid.h"
+#include "specula/voxel_tracer.h"
+
+namespace {
+
+using namespace specula;
+
+const VoxelSet& shell(int depth) {
+  static std::map<int, VoxelSet> sets;
+  auto it = sets.find(depth);
+  if (it == sets.end())
+    it = sets.emplace(depth, make_sphere_shell_set(VoxelGrid{Vec3(-1.0f), 2.0f, depth}, Vec3(0.0f), 0.9f)).first;
+  return it->second;
+}
+
+std::vector<Ray> primary_rays() {
+  std::vector<Ray> rays;
+  const int w = 640, h = 480;
+  const Vec3 eye(0.3f, 0.4f, 3.0f);
+  const float fov = 0.9f, aspect = static_cast<float>(w) / static_cast<float>(h);
+  for (int ty = 0; ty < h; ty += 8)
+    for (int tx = 0; tx < w; tx += 8)
+      for (int y = ty; y < ty + 8; ++y)
+        for (int x = tx; x < tx + 8; ++x) {
+          const float px = (2.0f * (static_cast<float>(x) + 0.5f) / static_cast<float>(w) - 1.0f) * std::tan(fov / 2) * aspect;
+          const float py = (1.0f - 2.0f * (static_cast<float>(y) + 0.5f) / static_cast<float>(h)) * std::tan(fov / 2);
+          Ray r;
+          r.org = eye;
+          r.dir = normalize(Vec3(px, py, -1.0f) + Vec3(-0.1f, -0.13f, 0.0f));
+          rays.push_back(r);
+        }
+  return rays;
+}
+
+std::vector<Ray> random_rays(size_t n) {
+  std::mt19937 rng(1);
+  std::uniform_real_distribution<float> u(-1.0f, 1.0f);
+  std::vector<Ray> rays;
+  for (size_t i = 0; i < n; ++i) {
+    Ray r;
+    r.org = Vec3(u(rng), u(rng), u(rng)) * 0.95f;
+    r.dir = normalize(Vec3(u(rng), u(rng), u(rng)));
+    rays.push_back(r);
+  }
+  return rays;
+}
+
+template <class Build>
+void run(benchmark::State& state, const std::vector<Ray>& rays, Build&& build) {
+  const int depth = static_cast<int>(state.range(0));
+  VoxelTracerOptions o;
+  o.mode = state.range(1) ? VoxelHitMode::Contours : VoxelHitMode::Cubes;
+  const std::unique_ptr<VoxelTracer> t = build(shell(depth), o);
+  std::vector<Hit> hits(rays.size());
+  for (auto _ : state) {
+    t->intersect(rays, hits);
+    benchmark::DoNotOptimize(hits.data());
+  }
+  TraceStats stats;
+  t->intersect(rays, hits, &stats);
+  size_t hit = 0;
+  for (const Hit& h : hits) hit += h.hit() ? 1 : 0;
+  state.counters["Mrays/s"] = benchmark::Counter(static_cast<double>(rays.size()) / 1e6, benchmark::Counter::kIsIterationInvariantRate);
+  state.counters["hit%"] = 100.0 * static_cast<double>(hit) / static_cast<double>(rays.size());
+  state.counters["nodes/ray"] = static_cast<double>(stats.nodes_visited) / static_cast<double>(rays.size());
+  state.counters["voxels"] = static_cast<double>(t->voxel_count());
+  state.counters["tests/ray"] = static_cast<double>(stats.triangles_tested) / static_cast<double>(rays.size());
+  state.counters["MB"] = static_cast<double>(t->memory_bytes()) / 1048576.0;
+}
+
+const auto svo_builder = [](const VoxelSet& s, const VoxelTracerOptions& o) -> std::unique_ptr<VoxelTracer> {
+  return std::make_unique<SparseVoxelOctree>(SparseVoxelOctree::build(s, o));
+};
+const auto grid_builder = [](const VoxelSet& s, const VoxelTracerOptions& o) -> std::unique_ptr<VoxelTracer> {
+  return std::make_unique<VoxelGridTracer>(VoxelGridTracer::build(s, o));
+};
+
+void BM_SvoPrimary(benchmark::State& state) {
+  static const std::vector<Ray> rays = primary_rays();
+  run(state, rays, svo_builder);
+}
+void BM_VoxelGridPrimary(benchmark::State& state) {
+  static const std::vector<Ray> rays = primary_rays();
+  run(state, rays, grid_builder);
+}
+void BM_SvoRandom(benchmark::State& state) {
+  static const std::vector<Ray> rays = random_rays(200000);
+  run(state, rays, svo_builder);
+}
+void BM_VoxelGridRandom(benchmark::State& state) {
+  static const std::vector<Ray> rays = random_rays(200000);
+  run(state, rays, grid_builder);
+}
+
+void BM_SvoBuild(benchmark::State& state) {
+  const VoxelSet& s = shell(static_cast<int>(state.range(0)));
+  VoxelTracerOptions o;
+  o.threads = 1;
+  SvoInfo info;
+  for (auto _ : state) {
+    SparseVoxelOctree svo = SparseVoxelOctree::build(s, o, &info);
+    benchmark::DoNotOptimize(svo);
+  }
+  state.counters["voxels"] = static_cast<double>(info.voxels);
+  state.counters["node B/voxel"] = info.node_bytes_per_voxel;
+  state.counters["B/voxel"] = info.bytes_per_voxel;
+}
+
+// Args: depth, contours (0 = cubes).
+BENCHMARK(BM_SvoPrimary)->Args({8, 0})->Args({8, 1})->Args({10, 0})->Args({10, 1})->ArgNames({"depth", "contours"})->Unit(benchmark::kMillisecond);
+BENCHMARK(BM_VoxelGridPrimary)->Args({8, 0})->Args({10, 0})->ArgNames({"depth", "contours"})->Unit(benchmark::kMillisecond);
+BENCHMARK(BM_SvoRandom)->Args({8, 0})->Args({10, 0})->ArgNames({"depth", "contours"})->Unit(benchmark::kMillisecond);
+BENCHMARK(BM_VoxelGridRandom)->Args({8, 0})->Args({10, 0})->ArgNames({"depth", "contours"})->Unit(benchmark::kMillisecond);
+BENCHMARK(BM_SvoBuild)->Arg(8)->Arg(10)->ArgName("depth")->Unit(benchmark::kMillisecond);
+
+}  // namespace

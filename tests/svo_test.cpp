@@ -1,0 +1,657 @@
+// Sparse voxel octree tests: traversal == grid DDA == brute force over the voxel list (cubes
+// and contours, bit-identical t and normals), rays from outside / inside / inside voxels,
+// axis-parallel with +-0, lattice-grazing rays, NaN rays, level of detail, transmittance,
+// memory. Owner: voxel tracers.
+#include <gtest/gtest.h>
+
+#include <algorithm>
+#include <bit>
+#include <cmath>
+#include <cstdio>
+#include <cstring>
+#include <limits>
+#include <random>
+#include <sstream>
+#include <string>
+#include <vector>
+
+#include "specula/error.h"
+#include "specula/svo.h"
+#include "specula/voxel_grid.h"
+#include "specula/voxel_tracer.h"
+#include "voxel/voxel_brute.h"
+
+namespace specula {
+namespace {
+
+constexpr float kNaN = std::numeric_limits<float>::quiet_NaN();
+
+/// A grid whose local frame is an exact power-of-two scaling of world space (lattice rays are
+/// exact), and a generic one.
+VoxelGrid dyadic_grid(int depth) { return VoxelGrid{Vec3{-1.0f, -1.0f, -1.0f}, 2.0f, depth}; }
+VoxelGrid generic_grid(int depth) { return VoxelGrid{Vec3{0.37f, -1.3f, 2.1f}, 3.7f, depth}; }
+
+VoxelAttributes random_attrs(std::mt19937& rng, float voxel_size) {
+  std::uniform_real_distribution<float> u(-1.0f, 1.0f), u01(0.0f, 1.0f);
+  VoxelAttributes a;
+  Vec3 n;
+  do n = Vec3(u(rng), u(rng), u(rng));
+  while (length(n) < 0.1f || length(n) > 1.0f);
+  if (u01(rng) < 0.2f) n = Vec3(0.0f, 0.0f, 0.0f), n[static_cast<int>(rng() % 3)] = u(rng) < 0 ? -1.0f : 1.0f;
+  a.normal = normalize(n);
+  a.colour = Vec3(u01(rng), u01(rng), u01(rng));
+  a.reflectivity = u01(rng);
+  a.transparency = u01(rng) < 0.5f ? 0.0f : u01(rng);
+  a.ior = 1.0f + u01(rng);
+  const float c = 0.6f * voxel_size * u(rng), w = 0.3f * voxel_size * u01(rng);
+  a.contour_lo = c - w;
+  a.contour_hi = u01(rng) < 0.2f ? c - w : c + w;  // some flat (zero thickness) slabs
+  a.material = static_cast<uint32_t>(rng() % 7);
+  return a;
+}
+
+VoxelSet random_set(const VoxelGrid& grid, size_t count, uint32_t seed, bool attrs = true) {
+  std::mt19937 rng(seed);
+  const uint64_t cells = uint64_t{1} << (3 * grid.depth);
+  VoxelSet set;
+  set.grid = grid;
+  std::vector<uint64_t> codes;
+  for (size_t i = 0; i < count; ++i) codes.push_back((static_cast<uint64_t>(rng()) << 32 | rng()) % cells);
+  std::sort(codes.begin(), codes.end());
+  codes.erase(std::unique(codes.begin(), codes.end()), codes.end());
+  set.codes = codes;
+  if (attrs)
+    for (size_t i = 0; i < codes.size(); ++i) set.attrs.push_back(random_attrs(rng, grid.voxel_size()));
+  return set;
+}
+
+/// All voxels of the box [lo, hi] (voxel coordinates, inclusive).
+VoxelSet block_set(const VoxelGrid& grid, uint32_t lo, uint32_t hi, uint32_t seed) {
+  std::mt19937 rng(seed);
+  VoxelSet set;
+  set.grid = grid;
+  for (uint32_t z = lo; z <= hi; ++z)
+    for (uint32_t y = lo; y <= hi; ++y)
+      for (uint32_t x = lo; x <= hi; ++x) set.codes.push_back(morton_encode(x, y, z));
+  std::sort(set.codes.begin(), set.codes.end());
+  for (size_t i = 0; i < set.codes.size(); ++i) set.attrs.push_back(random_attrs(rng, grid.voxel_size()));
+  return set;
+}
+
+Ray make_ray(Vec3 org, Vec3 dir, float tmin = 0.0f, float tmax = kInf) {
+  Ray r;
+  r.org = org;
+  r.dir = dir;
+  r.tmin = tmin;
+  r.tmax = tmax;
+  return r;
+}
+
+/// Ray families: from outside, from inside the root, from inside occupied voxels, axis
+/// parallel with +-0 components (origins on lattice planes too), lattice-to-lattice rays
+/// (through edges and corners), random [tmin, tmax] windows, and a few NaN / degenerate rays.
+std::vector<Ray> make_rays(const VoxelSet& set, size_t count, uint32_t seed) {
+  std::mt19937 rng(seed);
+  std::uniform_real_distribution<float> u(-1.0f, 1.0f), u01(0.0f, 1.0f);
+  const VoxelGrid& g = set.grid;
+  const float s = g.voxel_size();
+  const uint32_t res = g.resolution();
+  const Vec3 centre = g.origin + Vec3(0.5f * g.side);
+  const auto in_box = [&](float margin) {
+    return g.origin + Vec3(u01(rng), u01(rng), u01(rng)) * (g.side * (1.0f + 2.0f * margin)) - Vec3(margin * g.side);
+  };
+  const auto rand_dir = [&] {
+    Vec3 d;
+    do d = Vec3(u(rng), u(rng), u(rng));
+    while (length(d) < 0.05f);
+    return d * (0.25f + 4.0f * u01(rng));  // not unit: t is in units of |dir|
+  };
+  const auto lattice = [&](int lo, int hi) {
+    std::uniform_int_distribution<int> li(lo, hi);
+    return g.origin + Vec3(static_cast<float>(li(rng)), static_cast<float>(li(rng)), static_cast<float>(li(rng))) * s;
+  };
+  const auto zero = [&] { return (rng() & 1) ? 0.0f : -0.0f; };
+  std::vector<Ray> rays;
+  rays.reserve(count);
+  const int ires = static_cast<int>(res);
+  while (rays.size() < count) {
+    const uint32_t kind = static_cast<uint32_t>(rng() % 10);
+    Ray r;
+    switch (kind) {
+      case 0:
+      case 1: {  // from outside towards the box
+        Vec3 org = centre + normalize(rand_dir()) * (g.side * (1.0f + 2.0f * u01(rng)));
+        r = make_ray(org, in_box(0.1f) - org);
+        break;
+      }
+      case 2:  // inside the root
+        r = make_ray(in_box(0.0f), rand_dir());
+        break;
+      case 3: {  // inside an occupied voxel
+        if (set.codes.empty()) continue;
+        uint32_t x, y, z;
+        morton_decode(set.codes[rng() % set.codes.size()], x, y, z);
+        const Vec3 lo = g.voxel_box(x, y, z).min;
+        r = make_ray(lo + Vec3(u01(rng), u01(rng), u01(rng)) * s, rand_dir());
+        break;
+      }
+      case 4: {  // axis parallel, one or two +-0 components, origin often on lattice planes
+        Vec3 d = rand_dir();
+        const int a0 = static_cast<int>(rng() % 3);
+        d[a0] = zero();
+        if (rng() & 1) d[(a0 + 1 + static_cast<int>(rng() % 2)) % 3] = zero();
+        Vec3 org = in_box(0.2f);
+        if (rng() & 1) {
+          const Vec3 l = lattice(-1, ires + 1);
+          for (int i = 0; i < 3; ++i)
+            if (d[i] == 0.0f && (rng() % 4) != 0) org[i] = l[i];
+        }
+        r = make_ray(org, d);
+        break;
+      }
+      case 5:
+      case 6: {  // lattice to lattice: through edges and corners
+        const Vec3 a = lattice(-2, ires + 2), b = lattice(0, ires);
+        if (a == b) continue;
+        r = make_ray(a, b - a);
+        break;
+      }
+      case 7: {  // lattice origin, axis-diagonal direction
+        const Vec3 a = lattice(-1, ires + 1);
+        Vec3 d;
+        for (int i = 0; i < 3; ++i) d[i] = static_cast<float>(static_cast<int>(rng() % 3) - 1) * (0.5f + u01(rng));
+        if (d == Vec3{}) continue;
+        r = make_ray(a, d);
+        break;
+      }
+      case 8: {  // windows
+        Vec3 org = centre + normalize(rand_dir()) * (g.side * 1.5f);
+        r = make_ray(org, in_box(0.0f) - org, u01(rng) * 1.5f, 0.5f + u01(rng) * 1.5f);
+        if (rng() % 8 == 0) r.tmax = r.tmin;
+        break;
+      }
+      default: {  // degenerate
+        const uint32_t which = static_cast<uint32_t>(rng() % 16);
+        r = make_ray(in_box(0.2f), rand_dir());
+        if (which == 0) r.org.x = kNaN;
+        else if (which == 1) r.dir.y = kNaN;
+        else if (which == 2) r.dir = Vec3{};
+        else if (which == 3) r.tmin = kNaN;
+        else if (which == 4) r.tmax = -1.0f;
+        else if (which == 5) r.org.z = kInf;
+        else if (which == 6) r.dir = Vec3(zero(), zero(), zero());
+        break;
+      }
+    }
+    rays.push_back(r);
+  }
+  return rays;
+}
+
+std::string describe(const Ray& r) {
+  std::ostringstream os;
+  os.precision(9);
+  os << "org (" << r.org.x << ", " << r.org.y << ", " << r.org.z << ") dir (" << r.dir.x << ", " << r.dir.y << ", "
+     << r.dir.z << ") t [" << r.tmin << ", " << r.tmax << "]";
+  return os.str();
+}
+
+std::string describe(const Hit& h) {
+  std::ostringstream os;
+  os.precision(9);
+  if (!h.hit()) return "miss";
+  os << "prim " << h.prim << " t " << h.t << " n (" << h.ng.x << ", " << h.ng.y << ", " << h.ng.z << ")";
+  return os.str();
+}
+
+bool same_hit(const Hit& a, const Hit& b) {
+  if (a.prim != b.prim) return false;
+  if (!a.hit()) return true;
+  return std::bit_cast<uint32_t>(a.t) == std::bit_cast<uint32_t>(b.t) && a.ng == b.ng;
+}
+
+/// Counts rays where \p b differs from \p a (printing the first few).
+size_t compare_hits(const Tracer& a, const Tracer& b, std::span<const Ray> rays, const std::string& what) {
+  std::vector<Hit> ha(rays.size()), hb(rays.size());
+  a.intersect(rays, ha);
+  b.intersect(rays, hb);
+  size_t bad = 0;
+  for (size_t i = 0; i < rays.size(); ++i) {
+    if (same_hit(ha[i], hb[i])) continue;
+    if (++bad <= 5)
+      ADD_FAILURE() << what << ": " << a.name() << " " << describe(ha[i]) << " vs " << b.name() << " " << describe(hb[i])
+                    << " for ray " << describe(rays[i]);
+  }
+  return bad;
+}
+
+size_t compare_transmittance(const Tracer& a, const Tracer& b, std::span<const Ray> rays, const std::string& what) {
+  std::vector<Vec3> ta(rays.size()), tb(rays.size());
+  a.transmittance(rays, ta);
+  b.transmittance(rays, tb);
+  size_t bad = 0;
+  for (size_t i = 0; i < rays.size(); ++i) {
+    if (ta[i] == tb[i]) continue;
+    if (++bad <= 5)
+      ADD_FAILURE() << what << ": transmittance " << a.name() << " " << ta[i].x << " vs " << b.name() << " " << tb[i].x
+                    << " for ray " << describe(rays[i]);
+  }
+  return bad;
+}
+
+struct Case {
+  std::string name;
+  VoxelSet set;
+};
+
+std::vector<Case> oracle_cases() {
+  std::vector<Case> cases;
+  cases.push_back({"random sparse d5", random_set(dyadic_grid(5), 400, 1)});
+  cases.push_back({"random dense d3 generic", random_set(generic_grid(3), 300, 2)});
+  cases.push_back({"shell d5", make_sphere_shell_set(dyadic_grid(5), Vec3(0.05f, -0.1f, 0.0f), 0.8f, 3)});
+  cases.push_back({"block d3", block_set(dyadic_grid(3), 2, 5, 3)});
+  cases.push_back({"single d7", random_set(dyadic_grid(7), 1, 4)});
+  cases.push_back({"random d4 no attrs", random_set(generic_grid(4), 200, 5, false)});
+  cases.push_back({"full d2", block_set(generic_grid(2), 0, 3, 6)});
+  cases.push_back({"empty d4", random_set(dyadic_grid(4), 0, 7)});
+  return cases;
+}
+
+TEST(SvoOracle, SvoGridAndBruteForceAgreeBitForBit) {
+  for (const Case& c : oracle_cases()) {
+    for (const VoxelHitMode mode : {VoxelHitMode::Cubes, VoxelHitMode::Contours}) {
+      VoxelTracerOptions o;
+      o.mode = mode;
+      const SparseVoxelOctree svo = SparseVoxelOctree::build(c.set, o);
+      const VoxelGridTracer grid = VoxelGridTracer::build(c.set, o);
+      const voxel::VoxelBruteTracer brute(c.set, o);
+      const size_t n = c.set.size() > 1000 ? 5000 : 20000;
+      const std::vector<Ray> rays = make_rays(c.set, n, 11);
+      const std::string what = c.name + " " + to_string(mode);
+      EXPECT_EQ(compare_hits(brute, svo, rays, what), 0u) << what;
+      EXPECT_EQ(compare_hits(brute, grid, rays, what), 0u) << what;
+      // The tests must be able to fail: some rays hit, some miss.
+      std::vector<Hit> hits(rays.size());
+      svo.intersect(rays, hits);
+      const size_t hit_count = static_cast<size_t>(std::count_if(hits.begin(), hits.end(), [](const Hit& h) { return h.hit(); }));
+      if (!c.set.codes.empty()) {
+        EXPECT_GT(hit_count, rays.size() / 50) << what;
+      }
+      EXPECT_LT(hit_count, rays.size()) << what;
+    }
+  }
+}
+
+TEST(SvoOracle, HundredThousandRaysSvoEqualsGrid) {
+  const std::vector<Case> cases = {
+      {"shell d8", make_sphere_shell_set(dyadic_grid(8), Vec3(0.0f), 0.9f)},
+      {"random d9", random_set(generic_grid(9), 20000, 21)},
+  };
+  for (const Case& c : cases) {
+    for (const VoxelHitMode mode : {VoxelHitMode::Cubes, VoxelHitMode::Contours}) {
+      VoxelTracerOptions o;
+      o.mode = mode;
+      const SparseVoxelOctree svo = SparseVoxelOctree::build(c.set, o);
+      const VoxelGridTracer grid = VoxelGridTracer::build(c.set, o);
+      // 100k rays, except for the slow dense-DDA reference at depth 9 in contour mode.
+      const size_t n = c.set.grid.depth > 8 && mode == VoxelHitMode::Contours ? 25000 : 100000;
+      const std::vector<Ray> rays = make_rays(c.set, n, 12);
+      const std::string what = c.name + " " + to_string(mode);
+      EXPECT_EQ(compare_hits(grid, svo, rays, what), 0u) << what;
+      // Brute force on a subset (it is O(voxels) per ray).
+      const voxel::VoxelBruteTracer brute(c.set, o);
+      EXPECT_EQ(compare_hits(brute, svo, std::span<const Ray>(rays).first(400), what), 0u) << what;
+    }
+  }
+}
+
+TEST(SvoOracle, DeepTreesAgreeWithBruteForce) {
+  for (const int depth : {12, 16, 21}) {
+    VoxelSet set = random_set(dyadic_grid(depth), 60, 30 + static_cast<uint32_t>(depth));
+    // Plus a little cluster so neighbouring voxels exist at full depth.
+    const uint32_t base = 1u << (depth - 1);
+    for (uint32_t i = 0; i < 3; ++i) set.codes.push_back(morton_encode(base + i, base, base));
+    std::sort(set.codes.begin(), set.codes.end());
+    set.codes.erase(std::unique(set.codes.begin(), set.codes.end()), set.codes.end());
+    std::mt19937 rng(5);
+    set.attrs.clear();
+    for (size_t i = 0; i < set.codes.size(); ++i) set.attrs.push_back(random_attrs(rng, set.grid.voxel_size()));
+    const voxel::VoxelBruteTracer brute(set);
+    const SparseVoxelOctree svo = SparseVoxelOctree::build(set);
+    // Rays aimed at the voxels (random rays would almost never hit at this depth).
+    std::vector<Ray> rays;
+    std::uniform_real_distribution<float> u(-1.0f, 1.0f), u01(0.0f, 1.0f);
+    for (int i = 0; i < 3000; ++i) {
+      uint32_t x, y, z;
+      morton_decode(set.codes[rng() % set.codes.size()], x, y, z);
+      const Vec3 target = set.grid.voxel_box(x, y, z).min + Vec3(u01(rng), u01(rng), u01(rng)) * set.grid.voxel_size();
+      Vec3 org = target + normalize(Vec3(u(rng), u(rng), u(rng))) * (u01(rng) * 3.0f);
+      if (i % 5 == 0) org = target + Vec3(u(rng), 0, 0) * set.grid.voxel_size() * 4.0f;  // nearly along an axis
+      rays.push_back(make_ray(org, target - org));
+    }
+    EXPECT_EQ(compare_hits(brute, svo, rays, "depth " + std::to_string(depth)), 0u);
+    std::vector<Hit> hits(rays.size());
+    svo.intersect(rays, hits);
+    EXPECT_GT(std::count_if(hits.begin(), hits.end(), [](const Hit& h) { return h.hit(); }), 1000);
+  }
+}
+
+TEST(Svo, NaNAndDegenerateRaysMiss) {
+  const VoxelSet set = block_set(dyadic_grid(3), 0, 7, 1);  // everything occupied
+  const SparseVoxelOctree svo = SparseVoxelOctree::build(set);
+  const std::vector<Ray> rays = {
+      make_ray(Vec3(kNaN, 0, 0), Vec3(1, 0, 0)),     make_ray(Vec3(0, 0, 0), Vec3(kNaN, 1, 0)),
+      make_ray(Vec3(0, 0, 0), Vec3(0, 0, 0)),        make_ray(Vec3(0, 0, 0), Vec3(-0.0f, 0.0f, -0.0f)),
+      make_ray(Vec3(0, 0, 0), Vec3(1, 0, 0), kNaN),  make_ray(Vec3(0, 0, 0), Vec3(1, 0, 0), 0.0f, kNaN),
+      make_ray(Vec3(0, 0, 0), Vec3(1, 0, 0), 2, 1),  make_ray(Vec3(kInf, 0, 0), Vec3(-1, 0, 0)),
+      make_ray(Vec3(0, 0, 0), Vec3(kInf, 0, 0)),
+  };
+  std::vector<Hit> hits(rays.size());
+  std::vector<Vec3> tr(rays.size());
+  svo.intersect(rays, hits);
+  svo.transmittance(rays, tr);
+  for (size_t i = 0; i < rays.size(); ++i) {
+    EXPECT_FALSE(hits[i].hit()) << describe(rays[i]);
+    EXPECT_EQ(tr[i], Vec3(1.0f)) << describe(rays[i]);
+  }
+  // A sane ray does hit (the test can fail).
+  Hit h;
+  const Ray ok = make_ray(Vec3(0, 0, 0), Vec3(1, 0, 0));
+  svo.intersect(std::span<const Ray>(&ok, 1), std::span<Hit>(&h, 1));
+  EXPECT_TRUE(h.hit());
+}
+
+TEST(Svo, CubeNormalsAndInsideConvention) {
+  VoxelSet set;
+  set.grid = dyadic_grid(2);  // voxels of side 0.5 over [-1, 1]^3
+  set.codes = {morton_encode(1, 1, 1)};  // [-0.5, 0]^3
+  const SparseVoxelOctree svo = SparseVoxelOctree::build(set);
+  const auto trace = [&](const Ray& r) {
+    Hit h;
+    svo.intersect(std::span<const Ray>(&r, 1), std::span<Hit>(&h, 1));
+    return h;
+  };
+  Hit h = trace(make_ray(Vec3(-3, -0.25f, -0.25f), Vec3(2, 0, 0)));  // enters through x = -0.5
+  ASSERT_TRUE(h.hit());
+  EXPECT_EQ(h.prim, 0u);
+  EXPECT_FLOAT_EQ(h.t, 1.25f);
+  EXPECT_EQ(h.ng, Vec3(-1, 0, 0));
+  h = trace(make_ray(Vec3(-0.25f, 2, -0.25f), Vec3(0, -1, -0.0f)));  // from +y
+  ASSERT_TRUE(h.hit());
+  EXPECT_FLOAT_EQ(h.t, 2.0f);
+  EXPECT_EQ(h.ng, Vec3(0, 1, 0));
+  // Starting inside: t = tmin, normal against the dominant direction axis.
+  h = trace(make_ray(Vec3(-0.25f, -0.25f, -0.25f), Vec3(0.1f, -0.2f, 0.9f), 0.01f));
+  ASSERT_TRUE(h.hit());
+  EXPECT_EQ(h.t, 0.01f);
+  EXPECT_EQ(h.ng, Vec3(0, 0, -1));
+  // A ray running in the face plane y = 0 (the voxel's top face) belongs to the voxel above:
+  // miss; in y = -0.5 (its bottom face) it belongs to this voxel: hit.
+  EXPECT_FALSE(trace(make_ray(Vec3(-3, 0.0f, -0.25f), Vec3(1, 0, 0))).hit());
+  EXPECT_TRUE(trace(make_ray(Vec3(-3, -0.5f, -0.25f), Vec3(1, -0.0f, 0))).hit());
+  // Touching only the edge (x = 0, y = 0): no positive-length crossing, miss.
+  EXPECT_FALSE(trace(make_ray(Vec3(-1, 1, -0.25f), Vec3(1, -1, 0))).hit());
+  // Through the voxel's diagonal corner-to-corner: hit at the corner.
+  h = trace(make_ray(Vec3(-1, -1, -1), Vec3(1, 1, 1)));
+  ASSERT_TRUE(h.hit());
+  EXPECT_FLOAT_EQ(h.t, 0.5f);
+  EXPECT_EQ(h.ng, Vec3(-1, 0, 0));  // corner ties go to the lowest axis
+}
+
+TEST(Svo, ContourHitsAndParallelView) {
+  VoxelSet set;
+  set.grid = dyadic_grid(1);  // voxels of side 1 over [-1, 1]^3
+  set.codes = {morton_encode(0, 0, 0), morton_encode(1, 0, 0)};
+  VoxelAttributes a;
+  a.normal = Vec3(0, 0, 1);
+  a.contour_lo = -0.1f;  // slab z in [-0.6, -0.4]
+  a.contour_hi = 0.1f;
+  set.attrs = {a, a};
+  VoxelTracerOptions o;
+  o.mode = VoxelHitMode::Contours;
+  const SparseVoxelOctree svo = SparseVoxelOctree::build(set, o);
+  const auto trace = [&](const Ray& r) {
+    Hit h;
+    svo.intersect(std::span<const Ray>(&r, 1), std::span<Hit>(&h, 1));
+    return h;
+  };
+  Hit h = trace(make_ray(Vec3(-0.5f, -0.5f, 2), Vec3(0, 0, -1)));
+  ASSERT_TRUE(h.hit());
+  EXPECT_NEAR(h.t, 2.4f, 1e-6f);
+  EXPECT_EQ(h.ng, Vec3(0, 0, 1));
+  // Parallel to the slab above it: passes through both voxels without a hit.
+  EXPECT_FALSE(trace(make_ray(Vec3(-2, -0.5f, -0.2f), Vec3(1, 0, 0))).hit());
+  // Parallel inside the slab: hits at the cube entry.
+  h = trace(make_ray(Vec3(-2, -0.5f, -0.5f), Vec3(1, 0, 0)));
+  ASSERT_TRUE(h.hit());
+  EXPECT_FLOAT_EQ(h.t, 1.0f);
+  VoxelTracerOptions cubes;
+  const SparseVoxelOctree svo_cubes = SparseVoxelOctree::build(set, cubes);
+  Hit hc;
+  const Ray above = make_ray(Vec3(-2, -0.5f, -0.2f), Vec3(1, 0, 0));
+  svo_cubes.intersect(std::span<const Ray>(&above, 1), std::span<Hit>(&hc, 1));
+  EXPECT_TRUE(hc.hit());
+}
+
+TEST(Svo, TransmittanceAgreesAndCountsEachVoxelOnce) {
+  VoxelSet set = make_sphere_shell_set(generic_grid(5), generic_grid(5).origin + Vec3(1.85f), 1.2f, 1);
+  for (auto& a : set.attrs) a.transparency = a.material == 0 ? 0.0f : 0.5f + 0.1f * static_cast<float>(a.material);
+  for (const VoxelHitMode mode : {VoxelHitMode::Cubes, VoxelHitMode::Contours}) {
+    VoxelTracerOptions o;
+    o.mode = mode;
+    const SparseVoxelOctree svo = SparseVoxelOctree::build(set, o);
+    const VoxelGridTracer grid = VoxelGridTracer::build(set, o);
+    const voxel::VoxelBruteTracer brute(set, o);
+    const std::vector<Ray> rays = make_rays(set, 8000, 17);
+    EXPECT_EQ(compare_transmittance(brute, svo, rays, to_string(mode)), 0u);
+    EXPECT_EQ(compare_transmittance(brute, grid, rays, to_string(mode)), 0u);
+    std::vector<Vec3> tr(rays.size());
+    svo.transmittance(rays, tr);
+    EXPECT_GT(std::count_if(tr.begin(), tr.end(), [](const Vec3& v) { return v.x > 0.0f && v.x < 1.0f; }), 50);
+    EXPECT_GT(std::count_if(tr.begin(), tr.end(), [](const Vec3& v) { return v.x == 0.0f; }), 50);
+  }
+  // Two voxels of transparency 0.5 in a row: 0.25 exactly, with an axis-parallel ray along
+  // their shared face plane counted once per voxel.
+  VoxelSet two;
+  two.grid = dyadic_grid(1);
+  two.codes = {morton_encode(0, 0, 0), morton_encode(1, 0, 0)};
+  VoxelAttributes a;
+  a.transparency = 0.5f;
+  two.attrs = {a, a};
+  const SparseVoxelOctree svo2 = SparseVoxelOctree::build(two);
+  const Ray r = make_ray(Vec3(-2, -0.5f, -1.0f), Vec3(1, 0, 0.0f));
+  Vec3 t;
+  svo2.transmittance(std::span<const Ray>(&r, 1), std::span<Vec3>(&t, 1));
+  EXPECT_EQ(t, Vec3(0.25f));
+}
+
+TEST(SvoLod, TracingAtLodEqualsTheCoarsenedSet) {
+  const VoxelSet sets[] = {make_sphere_shell_set(dyadic_grid(7), Vec3(0.1f, 0.0f, -0.05f), 0.7f),
+                           random_set(generic_grid(6), 3000, 8)};
+  for (const VoxelSet& set : sets) {
+    const int depth = set.grid.depth;
+    for (const VoxelHitMode mode : {VoxelHitMode::Cubes, VoxelHitMode::Contours}) {
+      VoxelTracerOptions o;
+      o.mode = mode;
+      SparseVoxelOctree svo = SparseVoxelOctree::build(set, o);
+      const std::vector<Ray> rays = make_rays(set, 5000, 23);
+      for (int level = 1; level < depth; ++level) {
+        svo.set_lod(level);
+        const VoxelSet coarse = svo.level_set(level);
+        // The coarsened codes are codes >> 3 (depth - level), unique.
+        std::vector<uint64_t> expect;
+        for (const uint64_t c : set.codes) expect.push_back(c >> (3 * (depth - level)));
+        expect.erase(std::unique(expect.begin(), expect.end()), expect.end());
+        ASSERT_EQ(coarse.codes, expect);
+        const SparseVoxelOctree ref = SparseVoxelOctree::build(coarse, o);
+        std::vector<Hit> hl(rays.size()), hr(rays.size());
+        svo.intersect(rays, hl);
+        ref.intersect(rays, hr);
+        const uint32_t n = static_cast<uint32_t>(set.size()), base = svo.level_offsets()[static_cast<size_t>(level)];
+        size_t bad = 0, hits = 0;
+        for (size_t i = 0; i < rays.size(); ++i) {
+          Hit mapped = hr[i];
+          if (mapped.hit()) {
+            mapped.prim += n + base;
+            ++hits;
+          }
+          if (!same_hit(hl[i], mapped) && ++bad <= 3)
+            ADD_FAILURE() << "level " << level << ": lod " << describe(hl[i]) << " vs coarse " << describe(mapped)
+                          << " for " << describe(rays[i]);
+        }
+        EXPECT_EQ(bad, 0u);
+        EXPECT_GT(hits, 100u);
+        const auto any = std::find_if(hl.begin(), hl.end(), [](const Hit& h) { return h.hit(); });
+        ASSERT_NE(any, hl.end());
+        EXPECT_GE(any->prim, n);
+        EXPECT_EQ(&svo.attributes(any->prim), &svo.inner_attributes()[any->prim - n]);
+      }
+      svo.set_lod(0);
+      const voxel::VoxelBruteTracer brute(set, o);
+      EXPECT_EQ(compare_hits(brute, svo, std::span<const Ray>(rays).first(1000), "lod 0"), 0u);
+      svo.set_lod(depth + 3);  // beyond the depth = full depth
+      EXPECT_EQ(compare_hits(brute, svo, std::span<const Ray>(rays).first(1000), "lod > depth"), 0u);
+    }
+  }
+  SparseVoxelOctree svo;
+  EXPECT_THROW(svo.set_lod(-1), Error);
+}
+
+TEST(SvoLod, InnerAttributesAreAveragedAndContoursConservative) {
+  const VoxelSet set = random_set(dyadic_grid(5), 2500, 9);
+  const SparseVoxelOctree svo = SparseVoxelOctree::build(set);
+  // Root colour = mean over the voxels (nested averaging weighted by counts).
+  Vec3 mean;
+  for (const auto& a : set.attrs) mean += a.colour;
+  mean = mean / static_cast<float>(set.size());
+  const VoxelAttributes& root = svo.inner_attributes()[0];
+  EXPECT_NEAR(root.colour.x, mean.x, 1e-4f);
+  EXPECT_NEAR(root.colour.y, mean.y, 1e-4f);
+  EXPECT_NEAR(root.colour.z, mean.z, 1e-4f);
+  for (int l = 0; l < set.grid.depth; ++l)
+    for (const auto& a : svo.level_set(l).attrs) EXPECT_NEAR(length(a.normal), 1.0f, 1e-5f);
+  // Every point of every leaf's contour polygon (sampled) lies in every ancestor's slab.
+  std::vector<VoxelSet> levels;
+  for (int l = 0; l <= set.grid.depth; ++l) levels.push_back(svo.level_set(l));
+  std::mt19937 rng(3);
+  std::uniform_real_distribution<float> u01(0.0f, 1.0f);
+  size_t checked = 0;
+  for (size_t i = 0; i < set.size(); i += 7) {
+    uint32_t x, y, z;
+    morton_decode(set.codes[i], x, y, z);
+    const Aabb box = set.grid.voxel_box(x, y, z);
+    const Vec3 c = box.center();
+    const VoxelAttributes& a = set.attrs[i];
+    for (int s = 0; s < 64; ++s) {
+      const Vec3 p = box.min + Vec3(u01(rng), u01(rng), u01(rng)) * set.grid.voxel_size();
+      const float d = dot(a.normal, p - c);
+      if (d < a.contour_lo || d > a.contour_hi) continue;
+      for (int l = 0; l < set.grid.depth; ++l) {
+        const uint64_t code = set.codes[i] >> (3 * (set.grid.depth - l));
+        const auto& lv = levels[static_cast<size_t>(l)];
+        const size_t j = static_cast<size_t>(std::lower_bound(lv.codes.begin(), lv.codes.end(), code) - lv.codes.begin());
+        ASSERT_LT(j, lv.codes.size());
+        uint32_t nx, ny, nz;
+        morton_decode(code, nx, ny, nz);
+        VoxelGrid g = set.grid;
+        g.depth = l;
+        const Vec3 nc = g.voxel_box(nx, ny, nz).center();
+        const VoxelAttributes& na = lv.attrs[j];
+        const float dn = dot(na.normal, p - nc);
+        const float eps = 1e-5f * g.voxel_size();
+        EXPECT_GE(dn, na.contour_lo - eps) << "level " << l;
+        EXPECT_LE(dn, na.contour_hi + eps) << "level " << l;
+        ++checked;
+      }
+    }
+  }
+  EXPECT_GT(checked, 1000u);
+}
+
+TEST(SvoMemory, ProportionalToVoxelCount) {
+  for (const int depth : {16, 21}) {
+    VoxelSet one;
+    one.grid = dyadic_grid(depth);
+    one.codes = {morton_encode(12345, 999, (1u << depth) - 1)};
+    SvoInfo info;
+    const SparseVoxelOctree svo = SparseVoxelOctree::build(one, {}, &info);
+    EXPECT_EQ(svo.nodes().size(), static_cast<size_t>(depth));
+    EXPECT_LT(svo.memory_bytes(), 64u * static_cast<size_t>(depth) + 200u);
+    EXPECT_EQ(info.voxels, 1u);
+    EXPECT_EQ(svo.to_voxel_set().codes, one.codes);
+  }
+  const VoxelSet scattered = random_set(dyadic_grid(16), 1000, 4);
+  const SparseVoxelOctree s2 = SparseVoxelOctree::build(scattered);
+  EXPECT_LE(s2.nodes().size(), scattered.size() * 16);
+  // A surface: bytes per voxel reported.
+  SvoInfo info;
+  const VoxelSet shell = make_sphere_shell_set(dyadic_grid(8), Vec3(0.0f), 0.9f);
+  const SparseVoxelOctree s3 = SparseVoxelOctree::build(shell, {}, &info);
+  EXPECT_LT(info.node_bytes_per_voxel, 4.0);
+  EXPECT_LT(info.bytes_per_voxel, 48.0 + 8.0 + 48.0 / 2.0);
+  RecordProperty("shell_d8_voxels", std::to_string(info.voxels));
+  RecordProperty("shell_d8_node_bytes_per_voxel", std::to_string(info.node_bytes_per_voxel));
+  RecordProperty("shell_d8_bytes_per_voxel", std::to_string(info.bytes_per_voxel));
+  std::printf("[ info     ] shell depth 8: %zu voxels, %zu nodes, %.2f node bytes/voxel, %.2f bytes/voxel total\n",
+              info.voxels, info.nodes, info.node_bytes_per_voxel, info.bytes_per_voxel);
+}
+
+TEST(Svo, BuildRejectsInvalidSets) {
+  VoxelSet ok = random_set(dyadic_grid(3), 20, 1);
+  EXPECT_NO_THROW(SparseVoxelOctree::build(ok));
+  VoxelSet s = ok;
+  std::swap(s.codes[0], s.codes[1]);
+  EXPECT_THROW(SparseVoxelOctree::build(s), Error);
+  s = ok;
+  s.codes[1] = s.codes[0];
+  EXPECT_THROW(SparseVoxelOctree::build(s), Error);
+  s = ok;
+  s.codes.back() = 512;  // 8^3
+  EXPECT_THROW(SparseVoxelOctree::build(s), Error);
+  s = ok;
+  s.attrs.pop_back();
+  EXPECT_THROW(SparseVoxelOctree::build(s), Error);
+  s = ok;
+  s.attrs[3].normal.x = kNaN;
+  EXPECT_THROW(SparseVoxelOctree::build(s), Error);
+  s = ok;
+  s.attrs[3].contour_lo = 1.0f, s.attrs[3].contour_hi = 0.0f;
+  EXPECT_THROW(SparseVoxelOctree::build(s), Error);
+  s = ok;
+  s.grid.depth = 22;
+  EXPECT_THROW(SparseVoxelOctree::build(s), Error);
+  s = ok;
+  s.grid.side = 0.0f;
+  EXPECT_THROW(SparseVoxelOctree::build(s), Error);
+  EXPECT_THROW(build_voxel_tracer("octree", ok), Error);
+  EXPECT_THROW(parse_voxel_hit_mode("spheres"), Error);
+  EXPECT_EQ(parse_voxel_hit_mode("contours"), VoxelHitMode::Contours);
+  const SparseVoxelOctree svo = SparseVoxelOctree::build(ok);
+  EXPECT_THROW(svo.attributes(static_cast<uint32_t>(ok.size() + svo.nodes().size())), Error);
+}
+
+TEST(Svo, DepthZeroEmptyAndFactory) {
+  VoxelSet one;
+  one.grid = generic_grid(0);
+  one.codes = {0};
+  VoxelSet empty;
+  empty.grid = generic_grid(5);
+  for (const VoxelSet* set : {&one, &empty}) {
+    for (const char* kind : {"svo", "grid", "voxel_brute"}) {
+      const auto t = build_voxel_tracer(kind, *set);
+      EXPECT_EQ(t->name(), kind);
+      EXPECT_EQ(t->voxel_count(), set->size());
+    }
+    const auto svo = build_voxel_tracer("svo", *set);
+    const auto grid = build_voxel_tracer("grid", *set);
+    const voxel::VoxelBruteTracer brute(*set);
+    const std::vector<Ray> rays = make_rays(*set, 3000, 2);
+    EXPECT_EQ(compare_hits(brute, *svo, rays, "svo"), 0u);
+    EXPECT_EQ(compare_hits(brute, *grid, rays, "grid"), 0u);
+  }
+  EXPECT_EQ(SparseVoxelOctree::build(one).to_voxel_set().codes, one.codes);
+  EXPECT_TRUE(SparseVoxelOctree::build(empty).to_voxel_set().codes.empty());
+}
+
+}  // namespace
+}  // namespace specula
