@@ -163,3 +163,21 @@ TEST_F(Cli, BenchRenderPrintsFrameRatesAndSeedFigures) {
   EXPECT_NE(cam.exit_code, 0);
   EXPECT_NE(cam.err.find("nope"), std::string::npos) << cam.err;
 }
+
+TEST_F(Cli, RenderTracesVoxelsWithEveryVoxelStructure) {
+  const fs::path obj = write("quad.obj", kQuadObj);
+  for (const char* accel : {"svo", "grid"}) {
+    const fs::path png = dir_ / (std::string(accel) + ".png");
+    const RunResult r = run_cli("render '" + obj.string() + "' --accel " + accel +
+                                    " --depth 4 --voxel-mode contours --width 24 --height 16 -o '" + png.string() + "'",
+                                dir_);
+    ASSERT_EQ(r.exit_code, 0) << accel << ": " << r.err;
+    EXPECT_NE(r.out.find("voxelize"), std::string::npos) << r.out;
+    EXPECT_NE(r.out.find(std::string("(") + accel + ", contours hits"), std::string::npos) << r.out;
+    EXPECT_TRUE(fs::exists(png)) << accel;
+  }
+  const RunResult bad = run_cli("render '" + obj.string() + "' --accel svo --depth 40", dir_);
+  EXPECT_NE(bad.exit_code, 0);
+  const RunResult mode = run_cli("render '" + obj.string() + "' --accel svo --voxel-mode spheres", dir_);
+  EXPECT_NE(mode.exit_code, 0);
+}

@@ -655,3 +655,53 @@ TEST(Svo, DepthZeroEmptyAndFactory) {
 
 }  // namespace
 }  // namespace specula
+
+namespace specula {
+namespace {
+
+// Seed 001's medium rule: a ray skipping material m passes every voxel of material m and stops
+// at the first voxel of another material; the same answer as tracing the set without the
+// voxels of m (prims mapped back), in every voxel tracer, for both hit modes.
+TEST(VoxelSkip, SkippingAMaterialEqualsTracingTheSetWithoutIt) {
+  const VoxelSet set = random_set(dyadic_grid(5), 3000, 31);
+  const std::vector<Ray> rays = make_rays(set, 4000, 32);
+  for (const VoxelHitMode mode : {VoxelHitMode::Cubes, VoxelHitMode::Contours}) {
+    VoxelTracerOptions opt;
+    opt.mode = mode;
+    for (const uint32_t m : {0u, 3u, 6u}) {
+      VoxelSet without;
+      without.grid = set.grid;
+      std::vector<uint32_t> back;  // index in `without` -> index in `set`
+      for (size_t i = 0; i < set.size(); ++i)
+        if (set.attrs[i].material != m) {
+          without.codes.push_back(set.codes[i]);
+          without.attrs.push_back(set.attrs[i]);
+          back.push_back(static_cast<uint32_t>(i));
+        }
+      const auto reference = build_voxel_tracer("voxel_brute", without, opt);
+      std::vector<Hit> expected(rays.size());
+      reference->intersect(rays, expected);
+      const std::vector<uint32_t> skip(rays.size(), m);
+      for (const char* kind : {"svo", "grid", "voxel_brute"}) {
+        const auto tracer = build_voxel_tracer(kind, set, opt);
+        std::vector<Hit> hits(rays.size());
+        tracer->intersect_skipping(rays, skip, hits);
+        for (size_t r = 0; r < rays.size(); ++r) {
+          const uint32_t want = expected[r].hit() ? back[expected[r].prim] : kNoHit;
+          ASSERT_EQ(hits[r].prim, want) << kind << " " << to_string(mode) << " skip " << m << " ray " << r;
+          if (want != kNoHit) {
+            ASSERT_EQ(hits[r].t, expected[r].t) << kind << " ray " << r;
+          }
+        }
+        // Without a skip list (or kNoHit entries) nothing is skipped.
+        std::vector<Hit> plain(rays.size()), none(rays.size());
+        tracer->intersect(rays, plain);
+        tracer->intersect_skipping(rays, std::vector<uint32_t>(rays.size(), kNoHit), none);
+        for (size_t r = 0; r < rays.size(); ++r) ASSERT_EQ(plain[r].prim, none[r].prim) << kind << " ray " << r;
+      }
+    }
+  }
+}
+
+}  // namespace
+}  // namespace specula

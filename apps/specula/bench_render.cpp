@@ -83,27 +83,25 @@ std::string seed_cells(const SeedRow& r) {
 
 int bench_render(const BenchRenderOptions& options) {
   const std::vector<Size> sizes = parse_sizes(options.sizes);
-  double load_ms = 0.0;
-  const Scene scene = load_timed(options.scene, options.load, load_ms);
+  specula::RenderOptions ro = options.render;
+  const int threads = ro.threads > 0 ? ro.threads : tbb::info::default_concurrency();
+  const PreparedScene prepared =
+      prepare_scene(options.scene, options.load, options.accel, options.bvh, options.voxel, ro.threads);
+  const Scene& scene = prepared.scene;
+  const auto& tracer = prepared.tracer;
   if (scene.cameras.empty()) throw Error(options.scene + ": the scene has no camera");
   std::vector<std::string> cameras = split_list(options.cameras);
   if (cameras.empty())
     for (const Camera& c : scene.cameras) cameras.push_back(c.name);
-
-  specula::RenderOptions ro = options.render;
-  const int threads = ro.threads > 0 ? ro.threads : tbb::info::default_concurrency();
-  BvhOptions bvh = options.bvh;
-  bvh.threads = ro.threads;
-  const std::vector<Vec3> transmittance = shadow_transmittance(scene);
-  BuildInfo build;
-  const auto tracer = build_tracer(parse_accel_kind(options.accel),
-                                   TriangleInput{scene.positions, scene.indices, transmittance}, bvh, &build);
-
-  std::printf("bench render: %s, %s triangles, %s, %d thread%s, max reflect %d / refract %d, median of %d frame%s\n",
-              options.scene.c_str(), with_thousands(scene.triangle_count()).c_str(), options.accel.c_str(), threads,
-              threads == 1 ? "" : "s", ro.max_reflect, ro.max_refract, options.frames, options.frames == 1 ? "" : "s");
-  std::printf("load %.1f ms, build %.1f ms (%.2f MiB)\n\n", load_ms, build.build_ms,
-              static_cast<double>(build.bytes) / (1024.0 * 1024.0));
+  const bool voxels = options.accel == "svo" || options.accel == "grid";
+  std::printf("\nbench render: %s, %s, %d thread%s, max reflect %d / refract %d, median of %d frame%s\n\n",
+              options.scene.c_str(),
+              voxels ? (options.accel + " depth " + std::to_string(options.voxel.depth) + " " +
+                        to_string(options.voxel.tracer.mode))
+                           .c_str()
+                     : options.accel.c_str(),
+              threads, threads == 1 ? "" : "s", ro.max_reflect, ro.max_refract, options.frames,
+              options.frames == 1 ? "" : "s");
   const bool pool = options.scene == "pool";
   std::printf("%-10s %-10s %10s %8s %11s %9s", "camera", "size", "ms/frame", "fps", "Mrays/frm", "Mrays/s");
   if (pool) std::printf(" | seed 000 GPU fps, octree depth 1..8               | ours/seed d3  d8");

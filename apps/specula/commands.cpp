@@ -18,6 +18,7 @@
 #include "core/format.h"
 #include "specula/error.h"
 #include "specula/image.h"
+#include "specula/svo.h"
 #include "specula/timer.h"
 
 namespace specula::cli {
@@ -32,6 +33,63 @@ void print_build(const char* accel, const BuildInfo& b) {
   std::printf("build    %9.2f ms  (%s: %s nodes, %s leaves, depth %u, SAH cost %.2f, %.2f MiB)\n",
               b.build_ms, accel, with_thousands(b.nodes).c_str(), with_thousands(b.leaves).c_str(),
               b.max_depth, b.sah_cost, static_cast<double>(b.bytes) / (1024.0 * 1024.0));
+}
+
+namespace {
+bool ends_with_svo(const std::string& spec) {
+  const std::string ext = std::filesystem::path(spec).extension().string();
+  return ext == ".svo" || ext == ".SVO";
+}
+}  // namespace
+
+PreparedScene prepare_scene(const std::string& spec, const LoadOptions& load, const std::string& accel,
+                            const BvhOptions& bvh_options, const SceneVoxelOptions& voxel_options, int threads) {
+  PreparedScene out;
+  if (ends_with_svo(spec)) {
+    if (accel != "svo" && accel != "bvh")
+      throw Error(spec + ": a .svo file is traced by its octree (--accel svo), not '" + accel + "'");
+    const Timer timer;
+    VoxelTracerOptions t = voxel_options.tracer;
+    t.threads = threads;
+    auto svo = std::make_unique<SparseVoxelOctree>(read_svo(spec, t));
+    out.load_ms = timer.ms();
+    out.scene = svo_scene(*svo, std::filesystem::path(spec).filename().string());
+    out.bytes = svo->memory_bytes();
+    std::printf("scene    %s: %s voxels at depth %d (%s hits)\n", spec.c_str(), with_thousands(svo->voxel_count()).c_str(),
+                svo->grid().depth, to_string(svo->hit_mode()));
+    std::printf("load     %9.2f ms  (%.2f MiB)\n", out.load_ms, static_cast<double>(out.bytes) / (1024.0 * 1024.0));
+    out.tracer = std::move(svo);
+    return out;
+  }
+  out.scene = load_timed(spec, load, out.load_ms);
+  const Scene& scene = out.scene;
+  std::printf("scene    %s: %s triangles, %zu materials, %zu lights, %zu cameras\n",
+              scene.name.empty() ? spec.c_str() : scene.name.c_str(), with_thousands(scene.triangle_count()).c_str(),
+              scene.materials.size(), scene.lights.size(), scene.cameras.size());
+  std::printf("load     %9.2f ms\n", out.load_ms);
+  if (accel == "svo" || accel == "grid") {
+    SceneVoxelOptions v = voxel_options;
+    v.kind = accel;
+    v.threads = threads;
+    SceneVoxelInfo info;
+    out.tracer = voxelize_scene(scene, v, &info);
+    out.build_ms = info.voxelize_ms + info.build_ms;
+    out.bytes = info.bytes;
+    std::printf("voxelize %9.2f ms  (depth %d, %s voxels)\n", info.voxelize_ms, v.depth, with_thousands(info.voxels).c_str());
+    std::printf("build    %9.2f ms  (%s, %s hits, %.2f MiB, %.1f bytes/voxel)\n", info.build_ms, accel.c_str(),
+                to_string(v.tracer.mode), static_cast<double>(info.bytes) / (1024.0 * 1024.0),
+                info.voxels ? static_cast<double>(info.bytes) / static_cast<double>(info.voxels) : 0.0);
+    return out;
+  }
+  const std::vector<Vec3> transmittance = shadow_transmittance(scene);
+  BuildInfo build;
+  BvhOptions bvh = bvh_options;
+  bvh.threads = threads;
+  out.tracer = build_tracer(parse_accel_kind(accel), TriangleInput{scene.positions, scene.indices, transmittance}, bvh, &build);
+  out.build_ms = build.build_ms;
+  out.bytes = build.bytes;
+  print_build(accel.c_str(), build);
+  return out;
 }
 
 Scene load_timed(const std::string& spec, const LoadOptions& load, double& ms) {
@@ -88,25 +146,12 @@ int render(const RenderOptions& options) {
   if (same_file(options.output, options.scene))
     throw Error(options.output + ": refusing to overwrite the input scene");
 
-  double load_ms = 0;
-  Scene scene = load_timed(options.scene, options.load, load_ms);
-  std::printf("scene    %s: %s triangles, %zu materials, %zu lights, %zu cameras\n",
-              scene.name.empty() ? options.scene.c_str() : scene.name.c_str(),
-              with_thousands(scene.triangle_count()).c_str(), scene.materials.size(),
-              scene.lights.size(), scene.cameras.size());
-  std::printf("load     %9.2f ms\n", load_ms);
-
+  PreparedScene prepared =
+      prepare_scene(options.scene, options.load, options.accel, options.bvh, options.voxel, options.render.threads);
+  const Scene& scene = prepared.scene;
+  const auto& tracer = prepared.tracer;
   specula::RenderOptions ro = options.render;
   ro.aovs = parse_aovs(options.aovs);
-  const std::vector<Vec3> transmittance = shadow_transmittance(scene);
-  const std::vector<Vec3> no_transmittance;
-  BuildInfo build;
-  BvhOptions bvh = options.bvh;
-  bvh.threads = ro.threads;
-  const auto tracer =
-      build_tracer(parse_accel_kind(options.accel),
-                   TriangleInput{scene.positions, scene.indices, transmittance}, bvh, &build);
-  print_build(options.accel.c_str(), build);
 
   ProgressLine progress("rendering");
   ro.progress = [&progress](double f) { progress.update(f); };

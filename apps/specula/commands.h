@@ -2,12 +2,14 @@
 // returns the process exit code and throws specula::Error for user errors.
 #pragma once
 
+#include <memory>
 #include <string>
 #include <vector>
 
 #include "specula/accel.h"
 #include "specula/load.h"
 #include "specula/render.h"
+#include "specula/voxel_scene.h"
 #include "specula/voxelize.h"
 
 namespace CLI {
@@ -36,6 +38,7 @@ struct RenderOptions {
   int frames = 1;
   specula::RenderOptions render;
   BvhOptions bvh;
+  SceneVoxelOptions voxel;       ///< --accel svo|grid: --depth, --voxel-mode, --lod
   LoadOptions load;
 };
 
@@ -100,6 +103,7 @@ struct BenchRenderOptions {
   int frames = 5;                             ///< frames per cell; the median is printed
   specula::RenderOptions render;              ///< threads, max reflect / refract
   BvhOptions bvh;
+  SceneVoxelOptions voxel;
   LoadOptions load;
 };
 
@@ -108,6 +112,19 @@ struct BenchRenderOptions {
 int bench_render(const BenchRenderOptions& options);
 
 // Helpers shared by the subcommands (commands.cpp).
+
+/// A scene with the structure a rendering command traces it with.
+struct PreparedScene {
+  Scene scene;
+  std::unique_ptr<Tracer> tracer;
+  double load_ms = 0.0;
+  double build_ms = 0.0;  ///< structure build (voxelization included for voxel structures)
+  size_t bytes = 0;
+};
+/// Loads SCENE (a bare .svo file becomes a stand-in scene traced by its octree) and builds the
+/// structure \p accel names (bvh, brute, svo, grid), printing a load and a build line.
+PreparedScene prepare_scene(const std::string& spec, const LoadOptions& load, const std::string& accel,
+                            const BvhOptions& bvh, const SceneVoxelOptions& voxel, int threads);
 double median(std::vector<double> v);
 void print_build(const char* accel, const BuildInfo& b);
 Scene load_timed(const std::string& spec, const LoadOptions& load, double& ms);

@@ -46,9 +46,22 @@ void add_bvh_options(CLI::App* app, BvhOptions& bvh) {
 }
 
 /// --accel, --max-reflect, --max-refract, --threads: what every Whitted rendering command takes.
-void add_integrator_options(CLI::App* app, std::string& accel, specula::RenderOptions& ro) {
-  app->add_option("--accel", accel, "acceleration structure: bvh or brute")
-      ->check(CLI::IsMember({"bvh", "brute"}))
+void add_integrator_options(CLI::App* app, std::string& accel, specula::RenderOptions& ro, SceneVoxelOptions& voxel) {
+  app->add_option("--accel", accel,
+                  "acceleration structure: bvh, brute (every triangle: the test oracle), svo (sparse voxel "
+                  "octree) or grid (voxel grid, DDA); svo and grid voxelize the scene at --depth")
+      ->check(CLI::IsMember({"bvh", "brute", "svo", "grid"}))
+      ->capture_default_str();
+  app->add_option("--depth", voxel.depth, "voxel depth for --accel svo|grid: 2^depth voxels along the scene's largest side")
+      ->check(CLI::Range(1, kMaxVoxelDepth))
+      ->capture_default_str();
+  app->add_option_function<std::string>(
+         "--voxel-mode", [&voxel](const std::string& m) { voxel.tracer.mode = parse_voxel_hit_mode(m); },
+         "what a ray hits in a voxel: cubes, or contours (the slab between seed 000's two contour planes)")
+      ->check(CLI::IsMember({"cubes", "contours"}))
+      ->default_str("cubes");
+  app->add_option("--lod", voxel.tracer.lod, "octree level of detail: trace nodes at this depth as leaves (0 = full depth)")
+      ->check(CLI::Range(0, kMaxVoxelDepth))
       ->capture_default_str();
   app->add_option("--max-reflect", ro.max_reflect, "maximum mirror bounces per path")
       ->check(CLI::Range(0, 64))
@@ -85,7 +98,7 @@ int main(int argc, char** argv) {
   render_cmd->add_option("--height", render.render.height, "image height in pixels")
       ->check(CLI::Range(1, 32768))
       ->capture_default_str();
-  add_integrator_options(render_cmd, render.accel, render.render);
+  add_integrator_options(render_cmd, render.accel, render.render, render.voxel);
   render_cmd->add_option("--aov", render.aovs,
                          "extra outputs written beside the image: depth,normal,prim,cost "
                          "(cost = BVH nodes visited per pixel, as a heat map)");
@@ -167,7 +180,7 @@ int main(int argc, char** argv) {
   bench_render_cmd->add_option("--frames", bench_render.frames, "frames per cell (median printed)")
       ->check(CLI::Range(1, 1000))
       ->capture_default_str();
-  add_integrator_options(bench_render_cmd, bench_render.accel, bench_render.render);
+  add_integrator_options(bench_render_cmd, bench_render.accel, bench_render.render, bench_render.voxel);
   add_data_option(bench_render_cmd, bench_render.load);
   add_bvh_options(bench_render_cmd, bench_render.bvh);
 

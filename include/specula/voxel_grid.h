@@ -33,7 +33,8 @@ class VoxelGridTracer final : public VoxelTracer {
   static uint64_t bitmask_bytes(int depth);
 
   std::string name() const override { return "grid"; }
-  void intersect(std::span<const Ray> rays, std::span<Hit> hits, TraceStats* stats = nullptr) const override;
+  void intersect_skipping(std::span<const Ray> rays, std::span<const uint32_t> skip_material, std::span<Hit> hits,
+                          TraceStats* stats = nullptr) const override;
   void transmittance(std::span<const Ray> rays, std::span<Vec3> out, TraceStats* stats = nullptr) const override;
   size_t memory_bytes() const override;
 

@@ -35,6 +35,7 @@
 #pragma once
 
 #include <cstdint>
+#include <span>
 #include <memory>
 #include <string>
 
@@ -75,6 +76,15 @@ class VoxelTracer : public Tracer {
   virtual size_t voxel_count() const = 0;
   virtual VoxelHitMode hit_mode() const = 0;
   virtual void set_hit_mode(VoxelHitMode mode) = 0;
+
+  /// intersect() for rays travelling inside a medium made of voxels (seed 001's rule): ray i
+  /// passes through every voxel whose attributes' material equals skip_material[i] and stops
+  /// at the first voxel of another material. kNoHit (or an empty span) skips nothing.
+  virtual void intersect_skipping(std::span<const Ray> rays, std::span<const uint32_t> skip_material,
+                                  std::span<Hit> hits, TraceStats* stats = nullptr) const = 0;
+  void intersect(std::span<const Ray> rays, std::span<Hit> hits, TraceStats* stats = nullptr) const override {
+    intersect_skipping(rays, {}, hits, stats);
+  }
 };
 
 /// Builds "svo", "grid" or "voxel_brute" over \p set (copies what it needs). Throws

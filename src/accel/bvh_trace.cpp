@@ -10,9 +10,10 @@
 // Ray/box: slab test with a precomputed reciprocal direction; near and far planes are chosen
 // once per ray from the direction signs. A zero direction component has an infinite reciprocal;
 // when the origin lies exactly in that slab's plane, (bound - org) * rcp is 0 * inf = NaN, and
-// the min/max chains are ordered so that a NaN slab is ignored (SSE min/max return their second
-// operand when either is NaN): a ray running inside a box's face plane is inside that slab, as
-// the closed box and the edge-inclusive triangle test need. The far distance is scaled by
+// for such rays (only) the min/max chains are ordered so that a NaN slab is ignored (SSE min/max
+// return their second operand when either is NaN): a ray running inside a box's face plane is
+// inside that slab, as the closed box and the edge-inclusive triangle test need. Other rays take
+// a shallower min/max tree. The far distance is scaled by
 // 1 + 2 gamma(3) as in Ize 2013, "Robust BVH Ray Traversal" (JCGT 2(2)), so that rounding can
 // never make a ray miss a box that contains a triangle it hits (flat boxes of axis-aligned
 // triangles in particular). Triangles use the watertight test (watertight.h).
@@ -51,15 +52,15 @@ inline float min_ignore_nan(float maybe_nan, float t) { return maybe_nan < t ? m
 struct BoxRay {
   __m128 ox, oy, oz;
   __m128 rx, ry, rz;
-  __m128 tmin;
   float sox, soy, soz, srx, sry, srz;  ///< scalar copies for the root test
+  bool zero_component;  ///< some direction component is +-0 (or denormal): rcp infinite
 
   explicit BoxRay(const Ray& ray) {
     sox = ray.org.x, soy = ray.org.y, soz = ray.org.z;
     srx = 1.0f / ray.dir.x, sry = 1.0f / ray.dir.y, srz = 1.0f / ray.dir.z;  // +-inf for +-0
+    zero_component = !(std::isfinite(srx) && std::isfinite(sry) && std::isfinite(srz));
     ox = _mm_set1_ps(sox), oy = _mm_set1_ps(soy), oz = _mm_set1_ps(soz);
     rx = _mm_set1_ps(srx), ry = _mm_set1_ps(sry), rz = _mm_set1_ps(srz);
-    tmin = _mm_set1_ps(ray.tmin);
   }
 };
 
@@ -110,10 +111,12 @@ constexpr int kWideStackSize = 3 * 64 + 8;
 struct WideRay {
   __m128 ox, oy, oz, rx, ry, rz, tmin;
   int nx, ny, nz;  ///< 0: near plane = min, 1: near plane = max
+  bool zero_component;
 
   explicit WideRay(const BoxRay& br, float ray_tmin)
       : ox(br.ox), oy(br.oy), oz(br.oz), rx(br.rx), ry(br.ry), rz(br.rz), tmin(_mm_set1_ps(ray_tmin)),
-        nx(br.srx >= 0.0f ? 0 : 1), ny(br.sry >= 0.0f ? 0 : 1), nz(br.srz >= 0.0f ? 0 : 1) {}
+        nx(br.srx >= 0.0f ? 0 : 1), ny(br.sry >= 0.0f ? 0 : 1), nz(br.srz >= 0.0f ? 0 : 1),
+        zero_component(br.zero_component) {}
 };
 
 /// Slab test of the four children of \p n. Returns the hit mask; \p tnear gets entry distances.
@@ -125,9 +128,18 @@ inline int intersect_wide(const BvhWideNode& n, const WideRay& r, __m128 tmax, _
   const __m128 txf = _mm_mul_ps(_mm_sub_ps(_mm_load_ps(n.b[1 - r.nx][0]), r.ox), r.rx);
   const __m128 tyf = _mm_mul_ps(_mm_sub_ps(_mm_load_ps(n.b[1 - r.ny][1]), r.oy), r.ry);
   const __m128 tzf = _mm_mul_ps(_mm_sub_ps(_mm_load_ps(n.b[1 - r.nz][2]), r.oz), r.rz);
-  // NaN (origin in a slab plane, zero direction component) first in every max/min: ignored.
-  tnear = _mm_max_ps(tzn, _mm_max_ps(tyn, _mm_max_ps(txn, r.tmin)));
-  const __m128 tfar = _mm_mul_ps(_mm_min_ps(tzf, _mm_min_ps(tyf, _mm_min_ps(txf, tmax))), _mm_set1_ps(kFarScale));
+  __m128 tfar;
+  if (!r.zero_component) [[likely]] {
+    // Finite reciprocals: no NaN can arise, a shallow min/max tree.
+    tnear = _mm_max_ps(_mm_max_ps(txn, tyn), _mm_max_ps(tzn, r.tmin));
+    tfar = _mm_min_ps(_mm_min_ps(txf, tyf), _mm_min_ps(tzf, tmax));
+  } else {
+    // 0 * inf = NaN when the origin lies in a slab plane of a zero component: NaN first in
+    // every max/min (SSE returns the second operand then), so such a slab is ignored.
+    tnear = _mm_max_ps(tzn, _mm_max_ps(tyn, _mm_max_ps(txn, r.tmin)));
+    tfar = _mm_min_ps(tzf, _mm_min_ps(tyf, _mm_min_ps(txf, tmax)));
+  }
+  tfar = _mm_mul_ps(tfar, _mm_set1_ps(kFarScale));
   return _mm_movemask_ps(_mm_cmple_ps(tnear, tfar));
 }
 

@@ -27,6 +27,7 @@
 #include "specula/error.h"
 #include "specula/render.h"
 #include "specula/timer.h"
+#include "specula/voxel_tracer.h"
 
 namespace specula {
 
@@ -109,6 +110,7 @@ struct Scratch {
   std::vector<uint32_t> shadow_pixel;
   std::vector<Vec3> accum;
   std::vector<uint64_t> cost;
+  std::vector<uint32_t> skip;  ///< per ray: material of the voxel medium it is in (kNoHit: none)
 };
 
 
@@ -123,6 +125,15 @@ struct Context {
   bool want_depth, want_normal, want_prim, want_cost;
   Material fallback;
   Film& film;
+  /// Set when the tracer traces voxels: hits are then voxels (Hit::prim indexes the voxel
+  /// attributes), shaded with their averaged numbers over their largest triangle's material.
+  const VoxelTracer* voxels = nullptr;
+
+  /// Whether a hit record refers to something this context can shade.
+  bool valid(const Hit& hit) const {
+    if (!hit.hit()) return false;
+    return voxels ? true : hit.prim < scene.triangle_count();
+  }
 
   const Material& material(uint32_t prim) const {
     if (prim < scene.material_ids.size()) {
@@ -237,30 +248,77 @@ void shade_lights(const Context& ctx, Scratch& s, const Segment& seg, const Mate
 
 /// Shades one hit: emission, ambient and lights go to the pixel / shadow batch, mirror and
 /// refraction rays to the next wavefront.
-void shade_hit(const Context& ctx, Scratch& s, const Segment& seg, const Hit& hit,
-               uint32_t global_pixel) {
+/// What shading needs of a hit: position, normals, material.
+struct Surface {
+  Vec3 p;        ///< on the surface up to rounding (what offset_ray_origin assumes)
+  Vec3 ng;       ///< unit geometric normal as stored (not flipped)
+  Vec3 ns;       ///< unit shading normal as stored, or zero (= ng)
+  const Material* m;
+  uint32_t material_id;
+};
+
+/// A triangle hit: position from the barycentrics (not org + t dir, so it lies on the triangle
+/// up to rounding), interpolated vertex normals.
+Surface triangle_surface(const Context& ctx, const Hit& hit) {
   const Scene& scene = ctx.scene;
   const uint32_t prim = hit.prim;
   const uint32_t i0 = scene.indices[3 * size_t{prim}], i1 = scene.indices[3 * size_t{prim} + 1],
                  i2 = scene.indices[3 * size_t{prim} + 2];
   const float w0 = 1.0f - hit.u - hit.v;
-  // Position from the barycentrics (not org + t dir): it lies on the triangle up to rounding,
-  // which is what offset_ray_origin's error bound assumes.
-  const Vec3 p = scene.positions[i0] * w0 + scene.positions[i1] * hit.u + scene.positions[i2] * hit.v;
+  Surface sf;
+  sf.p = scene.positions[i0] * w0 + scene.positions[i1] * hit.u + scene.positions[i2] * hit.v;
+  sf.ng = hit.ng;
+  if (!(dot(sf.ng, sf.ng) > 0.0f) || !is_finite(sf.ng))
+    sf.ng = normalize(cross(scene.positions[i1] - scene.positions[i0], scene.positions[i2] - scene.positions[i0]));
+  sf.ns = Vec3{};
+  if (scene.normals.size() == scene.positions.size())
+    sf.ns = normalize(scene.normals[i0] * w0 + scene.normals[i1] * hit.u + scene.normals[i2] * hit.v);
+  sf.m = &ctx.material(prim);
+  sf.material_id = ctx.material_id(prim);
+  return sf;
+}
+
+/// A voxel hit: the voxel's averaged colour, reflectivity, transparency and ior over the
+/// material of its largest triangle part (specular, Phong exponent, absorption, emission);
+/// the normal the tracer reports (cube face or contour plane). \p storage holds the material.
+Surface voxel_surface(const Context& ctx, const Segment& seg, const Hit& hit, Material& storage) {
+  const VoxelAttributes& a = ctx.voxels->attributes(hit.prim);
+  const Material& base = a.material < ctx.scene.materials.size() ? ctx.scene.materials[a.material] : ctx.fallback;
+  storage.diffuse = a.colour;
+  storage.specular = base.specular;
+  storage.phong_exponent = base.phong_exponent;
+  storage.reflectivity = a.reflectivity;
+  storage.transparency = a.transparency;
+  storage.ior = a.transparency > 0.0f ? a.ior : base.ior;
+  storage.absorption = base.absorption;
+  storage.emission = base.emission;
+  Surface sf;
+  sf.p = seg.ray.org + seg.ray.dir * hit.t;
+  sf.ng = hit.ng;
+  if (!(dot(sf.ng, sf.ng) > 0.0f) || !is_finite(sf.ng)) sf.ng = -normalize(seg.ray.dir);
+  sf.ns = Vec3{};
+  sf.m = &storage;
+  sf.material_id = a.material;
+  return sf;
+}
+
+/// Shades one hit: emission, ambient and lights go to the pixel / shadow batch, mirror and
+/// refraction rays to the next wavefront.
+void shade_hit(const Context& ctx, Scratch& s, const Segment& seg, const Hit& hit,
+               uint32_t global_pixel) {
+  const Scene& scene = ctx.scene;
+  Material voxel_material;
+  const Surface sf = ctx.voxels ? voxel_surface(ctx, seg, hit, voxel_material) : triangle_surface(ctx, hit);
+  const Vec3& p = sf.p;
   const Vec3 d = normalize(seg.ray.dir);
-  Vec3 ng = hit.ng;
-  if (!(dot(ng, ng) > 0.0f) || !is_finite(ng))
-    ng = normalize(cross(scene.positions[i1] - scene.positions[i0], scene.positions[i2] - scene.positions[i0]));
+  const Vec3& ng = sf.ng;
   const bool front = dot(d, ng) < 0.0f;  // arriving on the side the winding faces
   const Vec3 ng_f = front ? ng : -ng;    // geometric normal facing the incoming ray
   Vec3 ns = ng_f;
-  if (scene.normals.size() == scene.positions.size()) {
-    const Vec3 n = normalize(scene.normals[i0] * w0 + scene.normals[i1] * hit.u + scene.normals[i2] * hit.v);
-    if (n != Vec3{}) ns = dot(n, ng_f) < 0.0f ? -n : n;
-  }
+  if (sf.ns != Vec3{}) ns = dot(sf.ns, ng_f) < 0.0f ? -sf.ns : sf.ns;
   const Vec3& ns_f = ns;
 
-  const Material& m = ctx.material(prim);
+  const Material& m = *sf.m;
   Vec3& out = s.accum[seg.pixel];
 
   float refl = std::clamp(m.reflectivity, 0.0f, 1.0f);
@@ -282,7 +340,7 @@ void shade_hit(const Context& ctx, Scratch& s, const Segment& seg, const Hit& hi
   Vec3 refr_dir;
   MediumStack refr_media = seg.media;
   if (trans > 0.0f) {
-    const uint32_t mid = ctx.material_id(prim);
+    const uint32_t mid = sf.material_id;
     float n1, n2;
     if (front) {  // entering the medium behind the surface
       n1 = ctx.medium_ior(seg.media.top());
@@ -380,15 +438,35 @@ void render_tile(const Context& ctx, const SkyEval& sky, Scratch& s, const Pinho
     s.rays.resize(n);
     s.hits.assign(n, Hit{});
     for (size_t i = 0; i < n; ++i) s.rays[i] = s.current[i].ray;
+    // Voxel media (seed 001): a ray inside a medium passes the voxels of that medium's material.
+    std::span<const uint32_t> skip;
+    if (ctx.voxels) {
+      s.skip.resize(n);
+      bool any = false;
+      for (size_t i = 0; i < n; ++i) {
+        const int top = s.current[i].media.top();
+        s.skip[i] = top < 0 ? kNoHit : static_cast<uint32_t>(top);
+        any = any || top >= 0;
+      }
+      if (any) skip = s.skip;
+    }
+    const auto trace = [&](size_t begin, size_t count, TraceStats* ts) {
+      const std::span<const Ray> rays(s.rays.data() + begin, count);
+      const std::span<Hit> hits(s.hits.data() + begin, count);
+      if (!skip.empty())
+        ctx.voxels->intersect_skipping(rays, skip.subspan(begin, count), hits, ts);
+      else
+        ctx.tracer.intersect(rays, hits, ts);
+    };
     if (ctx.want_cost) {
       // Per-ray queries so the node visits can be charged to their pixel.
       for (size_t i = 0; i < n; ++i) {
         TraceStats ts;
-        ctx.tracer.intersect(std::span<const Ray>(&s.rays[i], 1), std::span<Hit>(&s.hits[i], 1), &ts);
+        trace(i, 1, &ts);
         s.cost[s.current[i].pixel] += ts.nodes_visited;
       }
     } else {
-      ctx.tracer.intersect(s.rays, s.hits);
+      trace(0, n, nullptr);
     }
 
     s.next.clear();
@@ -399,7 +477,7 @@ void render_tile(const Context& ctx, const SkyEval& sky, Scratch& s, const Pinho
       Segment seg = s.current[i];
       const Hit& hit = s.hits[i];
       const float dir_len = length(seg.ray.dir);
-      const bool valid = hit.hit() && hit.prim < ctx.scene.triangle_count();
+      const bool valid = ctx.valid(hit);
       const float dist = valid ? hit.t * dir_len : kInf;
       seg.weight *= medium_attenuation(ctx, seg.media.top(), dist);
       const size_t gp = global(seg.pixel);
@@ -414,15 +492,9 @@ void render_tile(const Context& ctx, const SkyEval& sky, Scratch& s, const Pinho
       if (max_component(seg.weight) <= 0.0f) continue;
       shade_hit(ctx, s, seg, hit, static_cast<uint32_t>(gp));
       if (seg.primary && ctx.want_normal) {
-        const Scene& sc = ctx.scene;
-        const uint32_t i0 = sc.indices[3 * size_t{hit.prim}], i1 = sc.indices[3 * size_t{hit.prim} + 1],
-                       i2 = sc.indices[3 * size_t{hit.prim} + 2];
-        Vec3 nrm = hit.ng;
-        if (sc.normals.size() == sc.positions.size()) {
-          const Vec3 ni = normalize(sc.normals[i0] * (1.0f - hit.u - hit.v) + sc.normals[i1] * hit.u +
-                                    sc.normals[i2] * hit.v);
-          if (ni != Vec3{}) nrm = ni;
-        }
+        Material unused;
+        const Surface sf = ctx.voxels ? voxel_surface(ctx, seg, hit, unused) : triangle_surface(ctx, hit);
+        Vec3 nrm = sf.ns != Vec3{} ? sf.ns : sf.ng;
         if (dot(nrm, seg.ray.dir) > 0.0f) nrm = -nrm;  // facing the camera
         ctx.film.normal[gp] = nrm;
       }
@@ -503,6 +575,7 @@ Film render_whitted(const Scene& scene, const Tracer& tracer, const RenderOption
   film.height = h;
   film.color.assign(pixels, Vec3{});
   Context ctx{scene, tracer, w, h, 0, 0, 0, 0, false, false, false, false, Material{}, film};
+  ctx.voxels = dynamic_cast<const VoxelTracer*>(&tracer);
   for (Aov a : options.aovs) {
     switch (a) {
       case Aov::Depth: ctx.want_depth = true; film.depth.assign(pixels, kInf); break;

@@ -176,12 +176,12 @@ class SvoTraversal {
   }
 
   template <bool kStats>
-  static Hit closest(const SparseVoxelOctree& s, const Ray& ray, TraceStats& stats) {
+  static Hit closest(const SparseVoxelOctree& s, const Ray& ray, uint32_t skip, TraceStats& stats) {
     Hit hit;
     const VoxelHitMode mode = s.mode_;
     walk<kStats>(s, ray, stats, [&](const LocalRay& r, const uint32_t* cell, const VoxelAttributes& attrs, uint32_t prim) {
       CellHit h;
-      if (!voxel::hit_cell(r, cell, attrs, mode, h)) return false;
+      if (attrs.material == skip || !voxel::hit_cell(r, cell, attrs, mode, h)) return false;
       hit.t = h.t;
       hit.prim = prim;
       hit.ng = h.n;
@@ -208,15 +208,18 @@ class SvoTraversal {
   }
 };
 
-void SparseVoxelOctree::intersect(std::span<const Ray> rays, std::span<Hit> hits, TraceStats* stats) const {
+void SparseVoxelOctree::intersect_skipping(std::span<const Ray> rays, std::span<const uint32_t> skip,
+                                           std::span<Hit> hits, TraceStats* stats) const {
   if (hits.size() < rays.size()) throw Error("svo: hits span smaller than rays span");
+  if (!skip.empty() && skip.size() < rays.size()) throw Error("svo: skip span smaller than rays span");
+  const auto skip_of = [&](size_t i) { return skip.empty() ? kNoHit : skip[i]; };
   if (stats) {
     TraceStats local;
-    for (size_t i = 0; i < rays.size(); ++i) hits[i] = SvoTraversal::closest<true>(*this, rays[i], local);
+    for (size_t i = 0; i < rays.size(); ++i) hits[i] = SvoTraversal::closest<true>(*this, rays[i], skip_of(i), local);
     *stats += local;
   } else {
     TraceStats unused;
-    for (size_t i = 0; i < rays.size(); ++i) hits[i] = SvoTraversal::closest<false>(*this, rays[i], unused);
+    for (size_t i = 0; i < rays.size(); ++i) hits[i] = SvoTraversal::closest<false>(*this, rays[i], skip_of(i), unused);
   }
 }
 

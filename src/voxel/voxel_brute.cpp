@@ -64,18 +64,21 @@ VoxelBruteTracer::VoxelBruteTracer(const VoxelSet& set, const VoxelTracerOptions
   for (size_t i = 0; i < set.codes.size(); ++i) morton_decode(set.codes[i], cells_[i].c[0], cells_[i].c[1], cells_[i].c[2]);
 }
 
-void VoxelBruteTracer::intersect(std::span<const Ray> rays, std::span<Hit> hits, TraceStats* stats) const {
+void VoxelBruteTracer::intersect_skipping(std::span<const Ray> rays, std::span<const uint32_t> skip,
+                                          std::span<Hit> hits, TraceStats* stats) const {
   if (hits.size() < rays.size()) throw Error("voxel_brute: hits span smaller than rays span");
+  if (!skip.empty() && skip.size() < rays.size()) throw Error("voxel_brute: skip span smaller than rays span");
   TraceStats local;
   for (size_t r = 0; r < rays.size(); ++r) {
     Hit hit;
+    const uint32_t skip_material = skip.empty() ? kNoHit : skip[r];
     ++local.rays;
     LocalRay lr;
     if (make_local_ray(rays[r], grid_, lr)) {
       local.triangles_tested += cells_.size();
       for (size_t i = 0; i < cells_.size(); ++i) {
         CellHit h;
-        if (hit_cell(lr, cells_[i].c, attrs_[i], mode_, h) && h.t < hit.t) {
+        if (attrs_[i].material != skip_material && hit_cell(lr, cells_[i].c, attrs_[i], mode_, h) && h.t < hit.t) {
           hit.t = h.t;
           hit.prim = static_cast<uint32_t>(i);
           hit.ng = h.n;

@@ -182,7 +182,8 @@ class VoxelBruteTracer final : public VoxelTracer {
   explicit VoxelBruteTracer(const VoxelSet& set, const VoxelTracerOptions& options = {});
 
   std::string name() const override { return "voxel_brute"; }
-  void intersect(std::span<const Ray> rays, std::span<Hit> hits, TraceStats* stats = nullptr) const override;
+  void intersect_skipping(std::span<const Ray> rays, std::span<const uint32_t> skip_material, std::span<Hit> hits,
+                          TraceStats* stats = nullptr) const override;
   void transmittance(std::span<const Ray> rays, std::span<Vec3> out, TraceStats* stats = nullptr) const override;
   size_t memory_bytes() const override;
 
