@@ -331,20 +331,22 @@ class BvhBuilder {
     const int axis = split.axis;
     const float bmin = split.bin_min, bscale = split.bin_scale;
     const float maxbin = static_cast<float>(split.bin_count) - 1.0f;
-    uint32_t i = first, j = first + count;  // [i, j) not yet classified
-    while (i < j) {
-      PrimRef& r = refs_[i];
+    // Branchless Lomuto partition: which side a primitive goes to is a coin flip for the branch
+    // predictor, so every element is swapped into place unconditionally and the left end only
+    // advances for left elements; centroid bounds are grown through masks.
+    const __m128 empty_lo = _mm_set1_ps(kInf), empty_hi = _mm_set1_ps(-kInf);
+    uint32_t i = first;
+    for (uint32_t k = first; k < first + count; ++k) {
+      PrimRef r = refs_[k];
       const __m128 c = _mm_add_ps(_mm_load_ps(r.lo), _mm_load_ps(r.hi));
       const float ca = r.lo[axis] + r.hi[axis];
-      const int b = static_cast<int>(std::min((ca - bmin) * bscale, maxbin));
-      if (b < split.bin) {
-        lcb.grow(c, c);
-        ++i;
-      } else {
-        rcb.grow(c, c);
-        --j;
-        std::swap(r, refs_[j]);
-      }
+      const bool left = static_cast<int>(std::min((ca - bmin) * bscale, maxbin)) < split.bin;
+      const __m128 m = _mm_castsi128_ps(_mm_set1_epi32(left ? -1 : 0));
+      lcb.grow(_mm_or_ps(_mm_and_ps(m, c), _mm_andnot_ps(m, empty_lo)), _mm_or_ps(_mm_and_ps(m, c), _mm_andnot_ps(m, empty_hi)));
+      rcb.grow(_mm_or_ps(_mm_andnot_ps(m, c), _mm_and_ps(m, empty_lo)), _mm_or_ps(_mm_andnot_ps(m, c), _mm_and_ps(m, empty_hi)));
+      refs_[k] = refs_[i];
+      refs_[i] = r;
+      i += left ? 1u : 0u;
     }
     return i;
   }
