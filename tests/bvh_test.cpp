@@ -21,42 +21,19 @@
 #include "specula/error.h"
 #include "specula/load.h"
 #include "test_util.h"
+#include "ray_test_util.h"
 
 namespace specula {
 namespace {
 
+using test::make_ray;
+using test::trace1;
+using test::transmit1;
+using test::describe;
+
 using test::Mesh;
 
 constexpr float kNaN = std::numeric_limits<float>::quiet_NaN();
-
-Ray make_ray(Vec3 org, Vec3 dir, float tmin = 0.0f, float tmax = kInf) {
-  Ray r;
-  r.org = org;
-  r.dir = dir;
-  r.tmin = tmin;
-  r.tmax = tmax;
-  return r;
-}
-
-Hit trace1(const Tracer& t, const Ray& r) {
-  Hit h;
-  t.intersect(std::span<const Ray>(&r, 1), std::span<Hit>(&h, 1));
-  return h;
-}
-
-Vec3 transmit1(const Tracer& t, const Ray& r) {
-  Vec3 v;
-  t.transmittance(std::span<const Ray>(&r, 1), std::span<Vec3>(&v, 1));
-  return v;
-}
-
-std::string describe(const Ray& r) {
-  std::ostringstream os;
-  os.precision(9);
-  os << "org (" << r.org.x << ", " << r.org.y << ", " << r.org.z << ") dir (" << r.dir.x << ", " << r.dir.y << ", "
-     << r.dir.z << ") t [" << r.tmin << ", " << r.tmax << "]";
-  return os.str();
-}
 
 // ---------------------------------------------------------------------------------------------
 // Oracle: BVH against brute force.

@@ -20,9 +20,13 @@
 #include "specula/voxel_grid.h"
 #include "specula/voxel_tracer.h"
 #include "voxel/voxel_brute.h"
+#include "ray_test_util.h"
 
 namespace specula {
 namespace {
+
+using test::make_ray;
+using test::describe;
 
 constexpr float kNaN = std::numeric_limits<float>::quiet_NaN();
 
@@ -76,15 +80,6 @@ VoxelSet block_set(const VoxelGrid& grid, uint32_t lo, uint32_t hi, uint32_t see
   std::sort(set.codes.begin(), set.codes.end());
   for (size_t i = 0; i < set.codes.size(); ++i) set.attrs.push_back(random_attrs(rng, grid.voxel_size()));
   return set;
-}
-
-Ray make_ray(Vec3 org, Vec3 dir, float tmin = 0.0f, float tmax = kInf) {
-  Ray r;
-  r.org = org;
-  r.dir = dir;
-  r.tmin = tmin;
-  r.tmax = tmax;
-  return r;
 }
 
 /// Ray families: from outside, from inside the root, from inside occupied voxels, axis
@@ -186,14 +181,6 @@ std::vector<Ray> make_rays(const VoxelSet& set, size_t count, uint32_t seed) {
     rays.push_back(r);
   }
   return rays;
-}
-
-std::string describe(const Ray& r) {
-  std::ostringstream os;
-  os.precision(9);
-  os << "org (" << r.org.x << ", " << r.org.y << ", " << r.org.z << ") dir (" << r.dir.x << ", " << r.dir.y << ", "
-     << r.dir.z << ") t [" << r.tmin << ", " << r.tmax << "]";
-  return os.str();
 }
 
 std::string describe(const Hit& h) {

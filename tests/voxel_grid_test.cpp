@@ -10,24 +10,13 @@
 #include "specula/error.h"
 #include "specula/voxel_grid.h"
 #include "voxel/voxel_brute.h"
+#include "ray_test_util.h"
 
 namespace specula {
 namespace {
 
-Ray make_ray(Vec3 org, Vec3 dir, float tmin = 0.0f, float tmax = kInf) {
-  Ray r;
-  r.org = org;
-  r.dir = dir;
-  r.tmin = tmin;
-  r.tmax = tmax;
-  return r;
-}
-
-Hit trace1(const Tracer& t, const Ray& r) {
-  Hit h;
-  t.intersect(std::span<const Ray>(&r, 1), std::span<Hit>(&h, 1));
-  return h;
-}
+using test::make_ray;
+using test::trace1;
 
 VoxelSet cube_set(int depth, std::initializer_list<std::array<uint32_t, 3>> cells) {
   VoxelSet set;
