@@ -180,4 +180,8 @@ TEST_F(Cli, RenderTracesVoxelsWithEveryVoxelStructure) {
   EXPECT_NE(bad.exit_code, 0);
   const RunResult mode = run_cli("render '" + obj.string() + "' --accel svo --voxel-mode spheres", dir_);
   EXPECT_NE(mode.exit_code, 0);
+  const RunResult lod = run_cli("render '" + obj.string() + "' --accel grid --lod 2", dir_);
+  EXPECT_NE(lod.exit_code, 0);
+  EXPECT_NE(lod.err.find("--lod needs --accel svo"), std::string::npos) << lod.err;
+  EXPECT_NE(run_cli("render '" + obj.string() + "' --accel bvh --voxel-mode contours", dir_).exit_code, 0);
 }

@@ -67,6 +67,10 @@ PreparedScene prepare_scene(const std::string& spec, const LoadOptions& load, co
               scene.name.empty() ? spec.c_str() : scene.name.c_str(), with_thousands(scene.triangle_count()).c_str(),
               scene.materials.size(), scene.lights.size(), scene.cameras.size());
   std::printf("load     %9.2f ms\n", out.load_ms);
+  if (accel == "grid" && voxel_options.tracer.lod > 0)
+    throw Error("--lod needs --accel svo: the voxel grid has no coarser levels");
+  if (accel != "svo" && accel != "grid" && (voxel_options.tracer.lod > 0 || voxel_options.tracer.mode != VoxelHitMode::Cubes))
+    throw Error("--lod and --voxel-mode apply to --accel svo|grid, not '" + accel + "'");
   if (accel == "svo" || accel == "grid") {
     SceneVoxelOptions v = voxel_options;
     v.kind = accel;
