@@ -185,3 +185,22 @@ TEST_F(Cli, RenderTracesVoxelsWithEveryVoxelStructure) {
   EXPECT_NE(lod.err.find("--lod needs --accel svo"), std::string::npos) << lod.err;
   EXPECT_NE(run_cli("render '" + obj.string() + "' --accel bvh --voxel-mode contours", dir_).exit_code, 0);
 }
+
+TEST_F(Cli, VoxelizeToSvoThenRenderTheFile) {
+  const fs::path obj = write("quad.obj", kQuadObj);
+  const fs::path svo = dir_ / "quad.svo", png = dir_ / "quad.png";
+  const RunResult v = run_cli("voxelize '" + obj.string() + "' --depth 5 -o '" + svo.string() + "'", dir_);
+  ASSERT_EQ(v.exit_code, 0) << v.err;
+  EXPECT_NE(v.out.find("bytes/voxel"), std::string::npos) << v.out;
+  ASSERT_TRUE(fs::exists(svo));
+  const RunResult r = run_cli("render '" + svo.string() + "' --width 32 --height 24 -o '" + png.string() + "'", dir_);
+  ASSERT_EQ(r.exit_code, 0) << r.err;
+  EXPECT_NE(r.out.find("voxels at depth 5"), std::string::npos) << r.out;
+  EXPECT_TRUE(fs::exists(png));
+  // A .svo file is traced by its octree only; a corrupted one is a clear error.
+  EXPECT_NE(run_cli("render '" + svo.string() + "' --accel grid -o '" + png.string() + "'", dir_).exit_code, 0);
+  const fs::path bad = write("bad.svo", "SVO? not really an octree");
+  const RunResult b = run_cli("render '" + bad.string() + "' -o '" + png.string() + "'", dir_);
+  EXPECT_EQ(b.exit_code, 1);
+  EXPECT_NE(b.err.find("bad.svo"), std::string::npos) << b.err;
+}

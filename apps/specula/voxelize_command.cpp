@@ -17,6 +17,7 @@
 #include "specula/image.h"
 #include "specula/load.h"
 #include "specula/timer.h"
+#include "specula/svo.h"
 #include "specula/voxelize.h"
 
 namespace specula::cli {
@@ -64,16 +65,25 @@ std::string xyz_text(const VoxelSet& set) {
   return out;
 }
 
-/// Writes \p set to \p path, the format chosen by the extension. New formats (e.g. the sparse
-/// voxel octree's .svo) add a branch here.
-void write_voxels(const std::string& path, const VoxelSet& set, const std::string& protect) {
+/// Writes \p set to \p path, the format chosen by the extension: .xyz (voxel coordinates as
+/// text) or .svo (the sparse voxel octree with its attributes, see docs/svo-format.md).
+void write_voxels(const std::string& path, const VoxelSet& set, const std::string& protect, FILE* info) {
   const std::string ext = std::filesystem::path(path).extension().string();
   if (ext == ".xyz") {
     const std::string text = xyz_text(set);
     write_file_atomic(path, std::span(reinterpret_cast<const uint8_t*>(text.data()), text.size()), protect);
     return;
   }
-  throw Error(path + ": unsupported voxel output '" + ext + "' (supported: .xyz)");
+  if (ext == ".svo") {
+    SvoInfo si;
+    const SparseVoxelOctree svo = SparseVoxelOctree::build(set, {}, &si);
+    std::fprintf(info, "octree    %9.2f ms  (%s nodes, %.2f MiB, %.1f bytes/voxel, %.2f of them nodes)\n", si.build_ms,
+                 with_thousands(si.nodes).c_str(), static_cast<double>(si.bytes) / 1048576.0, si.bytes_per_voxel,
+                 si.node_bytes_per_voxel);
+    write_file_atomic(path, svo_to_bytes(svo), protect);
+    return;
+  }
+  throw Error(path + ": unsupported voxel output '" + ext + "' (supported: .xyz, .svo)");
 }
 
 struct Loaded {
@@ -226,7 +236,8 @@ CLI::App* add_voxelize_command(CLI::App& app, VoxelizeCommandOptions& o) {
   CLI::App* cmd = app.add_subcommand(
       "voxelize",
       "Voxelize SCENE's triangles exactly (every voxel a triangle touches, closed boxes) at depth D and print\n"
-      "triangles, voxels, ms, voxels/s and bytes; --format xyz / -o FILE.xyz lists the voxels; --table\n"
+      "triangles, voxels, ms, voxels/s and bytes; --format xyz / -o FILE.xyz lists the voxels, -o FILE.svo writes\n"
+      "the octree (specula render FILE.svo); --table\n"
       "reproduces seed 000's build-time table (depths 1-8, every test strategy, voxel counts, false positives)");
   cmd->add_option("scene", o.scene,
                   "a built-in scene (pool, glassbox, cornell), a JSON scene, a glTF file or a mesh (.obj/.ply)")
@@ -267,7 +278,7 @@ CLI::App* add_voxelize_command(CLI::App& app, VoxelizeCommandOptions& o) {
                   "xyz: print the occupied voxels as 'x y z' lines sorted by x, then y, then z (to stdout, or to "
                   "-o; the summary then goes to stderr)")
       ->check(CLI::IsMember({"xyz"}));
-  cmd->add_option("-o,--output", o.output, "write the voxels to FILE (.xyz), atomically");
+  cmd->add_option("-o,--output", o.output, "write the voxels to FILE: .xyz (coordinates) or .svo (octree, for specula render FILE.svo), atomically");
   return cmd;
 }
 
@@ -276,7 +287,8 @@ int voxelize(const VoxelizeCommandOptions& o) {
   if (o.depth < 1) throw Error("voxelize: --depth D is required (1.." + std::to_string(kMaxVoxelDepth) + ")");
   if (!o.output.empty()) {
     const std::string ext = std::filesystem::path(o.output).extension().string();
-    if (ext != ".xyz") throw Error(o.output + ": unsupported voxel output '" + ext + "' (supported: .xyz)");
+    if (ext != ".xyz" && ext != ".svo")
+      throw Error(o.output + ": unsupported voxel output '" + ext + "' (supported: .xyz, .svo)");
   }
   const bool xyz_to_stdout = o.format == "xyz" && o.output.empty();
   FILE* info = xyz_to_stdout ? stderr : stdout;
@@ -322,7 +334,7 @@ int voxelize(const VoxelizeCommandOptions& o) {
                static_cast<double>(st.estimate_bytes) / 1048576.0, static_cast<double>(st.memory_limit) / 1048576.0);
 
   if (!o.output.empty()) {
-    write_voxels(o.output, set, o.scene);
+    write_voxels(o.output, set, o.scene, info);
     std::fprintf(info, "wrote     %s\n", o.output.c_str());
   } else if (xyz_to_stdout) {
     const std::string text = xyz_text(set);
