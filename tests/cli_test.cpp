@@ -68,7 +68,7 @@ constexpr const char* kQuadObj =
 }  // namespace
 
 TEST_F(Cli, HelpOnEverySubcommand) {
-  for (const char* sub : {"", "render ", "trace ", "info ", "bench ", "bench trace ", "bench render "}) {
+  for (const char* sub : {"", "render ", "trace ", "info ", "bench ", "bench trace ", "bench render ", "bench svo ", "voxelize "}) {
     const RunResult r = run_cli(std::string(sub) + "--help", dir_);
     EXPECT_EQ(r.exit_code, 0) << sub;
     EXPECT_NE(r.out.find("Usage"), std::string::npos) << sub << r.out;
@@ -203,4 +203,13 @@ TEST_F(Cli, VoxelizeToSvoThenRenderTheFile) {
   const RunResult b = run_cli("render '" + bad.string() + "' -o '" + png.string() + "'", dir_);
   EXPECT_EQ(b.exit_code, 1);
   EXPECT_NE(b.err.find("bad.svo"), std::string::npos) << b.err;
+}
+
+TEST_F(Cli, BenchSvoPrintsSeedTablesContourCostAndPsnr) {
+  const RunResult r = run_cli("bench svo --cameras water --sizes 16x12 --depths 2,3 --frames 1", dir_);
+  ASSERT_EQ(r.exit_code, 0) << r.err;
+  for (const char* want : {"fps, voxel cubes", "fps, contours", "contour cost", "PSNR (dB) of the cube render",
+                           "water (16x12)", "depth 2:", "depth 3:"})
+    EXPECT_NE(r.out.find(want), std::string::npos) << want << "\n" << r.out;
+  EXPECT_NE(run_cli("bench svo --depths 0", dir_).exit_code, 0);
 }

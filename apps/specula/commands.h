@@ -111,6 +111,22 @@ struct BenchRenderOptions {
 /// the pool scene, seed 000's GPU frame rates beside ours.
 int bench_render(const BenchRenderOptions& options);
 
+/// Options of `specula bench svo`.
+struct BenchSvoOptions {
+  std::string scene = "pool";
+  std::string cameras;                      ///< empty = every camera of the scene
+  std::string sizes = "640x480,1920x1200";
+  std::string depths = "3,4,5,6,7,8";
+  int frames = 1;
+  specula::RenderOptions render;
+  LoadOptions load;
+};
+
+/// `specula bench svo`: seed 000's frame-rate table (octree depths x views) with ours beside the
+/// seed's, cubes and contours, the contour cost, and the PSNR of each voxel render against the
+/// triangle render of the same view.
+int bench_svo(const BenchSvoOptions& options);
+
 // Helpers shared by the subcommands (commands.cpp).
 
 /// A scene with the structure a rendering command traces it with.

@@ -5,6 +5,7 @@
 //   specula info   SCENE
 //   specula bench  trace [--scene pool] [--mesh FILE]
 //   specula bench  render [--scene pool] [--cameras a,b] [--sizes 640x480,1920x1200] [--frames N]
+//   specula bench  svo [--depths 3,4,5,6,7,8] [--cameras water,bunny,parallel] [--sizes ...]
 //   specula voxelize SCENE --depth D [--tests aabb,plane,sat] [--sat-at leaf|all] [--table] ...
 //
 // Argument parsing is CLI11; every subcommand throws specula::Error for user errors, which
@@ -184,6 +185,24 @@ int main(int argc, char** argv) {
   add_data_option(bench_render_cmd, bench_render.load);
   add_bvh_options(bench_render_cmd, bench_render.bvh);
 
+  cli::BenchSvoOptions bench_svo;
+  CLI::App* bench_svo_cmd = bench_cmd->add_subcommand(
+      "svo",
+      "Seed 000's frame-rate table: the scene voxelized at each --depths, rendered through the sparse voxel "
+      "octree (cubes and contours) per camera and size, ours beside the seed's GPU figures, plus the contour cost "
+      "and the PSNR against the triangle render");
+  bench_svo_cmd->add_option("--scene", bench_svo.scene, kSceneHelp)->capture_default_str();
+  bench_svo_cmd->add_option("--cameras", bench_svo.cameras, "comma-separated camera names (default: all)");
+  bench_svo_cmd->add_option("--sizes", bench_svo.sizes, "comma-separated image sizes WxH")->capture_default_str();
+  bench_svo_cmd->add_option("--depths", bench_svo.depths, "comma-separated octree depths")->capture_default_str();
+  bench_svo_cmd->add_option("--frames", bench_svo.frames, "frames per cell (median printed)")
+      ->check(CLI::Range(1, 1000))
+      ->capture_default_str();
+  bench_svo_cmd->add_option("--threads", bench_svo.render.threads, "worker threads (0 = all cores)")
+      ->check(CLI::Range(0, 1024))
+      ->capture_default_str();
+  add_data_option(bench_svo_cmd, bench_svo.load);
+
   // voxelize
   cli::VoxelizeCommandOptions voxelize;
   CLI::App* voxelize_cmd = cli::add_voxelize_command(app, voxelize);
@@ -201,6 +220,7 @@ int main(int argc, char** argv) {
     if (info_cmd->parsed()) return cli::info(info);
     if (bench_trace_cmd->parsed()) return cli::bench_trace(bench);
     if (bench_render_cmd->parsed()) return cli::bench_render(bench_render);
+    if (bench_svo_cmd->parsed()) return cli::bench_svo(bench_svo);
     if (voxelize_cmd->parsed()) return cli::voxelize(voxelize);
   } catch (const specula::Error& e) {
     std::fprintf(stderr, "specula: error: %s\n", e.what());
