@@ -169,13 +169,7 @@ TEST_P(BvhOracleMesh, HundredThousandRaysMatchBruteForce) {
   expect_matches_brute(input, rays, GetParam());
 }
 
-INSTANTIATE_TEST_SUITE_P(BvhShared, BvhOracleMesh, ::testing::ValuesIn(test::kSharedMeshes),
-                         [](const ::testing::TestParamInfo<const char*>& param_info) {
-                           std::string s = param_info.param;
-                           s = s.substr(0, s.find('.'));
-                           std::replace(s.begin(), s.end(), '-', '_');
-                           return s;
-                         });
+INSTANTIATE_TEST_SUITE_P(BvhShared, BvhOracleMesh, ::testing::ValuesIn(test::kSharedMeshes), test::mesh_param_name);
 
 // ---------------------------------------------------------------------------------------------
 // API basics.

@@ -30,6 +30,16 @@ inline std::filesystem::path shared_mesh(const std::string& file) {
 inline const char* const kSharedMeshes[] = {"stanford-bunny.obj", "teapot.obj", "spot.obj", "cow.obj",
                                             "fandisk.obj", "homer.obj", "rocker-arm.obj"};
 
+/// Test name of a parameterised test over kSharedMeshes: the file name without extension, '-'
+/// as '_' ("stanford-bunny.obj" -> "stanford_bunny").
+inline std::string mesh_param_name(const ::testing::TestParamInfo<const char*>& param) {
+  std::string s = param.param;
+  s = s.substr(0, s.find('.'));
+  for (char& c : s)
+    if (c == '-') c = '_';
+  return s;
+}
+
 /// A fresh, empty temporary folder for one test (removed by the caller's fixture or left in /tmp).
 inline std::filesystem::path temp_dir(const std::string& tag) {
   auto d = std::filesystem::temp_directory_path() /
