@@ -10,38 +10,15 @@
 #include <string>
 
 #include "test_util.h"
+#include "cli_test_util.h"
 
 namespace fs = std::filesystem;
 
 namespace {
 
-struct RunResult {
-  int exit_code = -1;
-  bool signaled = false;
-  std::string out, err;
-};
-
-std::string slurp(const fs::path& p) {
-  std::ifstream f(p, std::ios::binary);
-  std::stringstream ss;
-  ss << f.rdbuf();
-  return ss.str();
-}
-
-/// Runs the CLI with \p args (shell-quoted by the caller) and captures stdout/stderr.
-RunResult run_cli(const std::string& args, const fs::path& dir) {
-  const fs::path out = dir / "stdout.txt", err = dir / "stderr.txt";
-  const std::string cmd = std::string("'") + SPECULA_CLI_PATH + "' " + args + " >'" + out.string() + "' 2>'" +
-                          err.string() + "' </dev/null";
-  const int status = std::system(cmd.c_str());
-  RunResult r;
-  if (WIFEXITED(status)) r.exit_code = WEXITSTATUS(status);
-  // std::system runs /bin/sh, which reports a child killed by signal N as exit 128+N.
-  r.signaled = WIFSIGNALED(status) || (r.exit_code > 128);
-  r.out = slurp(out);
-  r.err = slurp(err);
-  return r;
-}
+using specula::test::RunResult;
+using specula::test::run_cli;
+using specula::test::slurp;
 
 class Cli : public ::testing::Test {
  protected:

@@ -20,6 +20,7 @@
 #include "specula/voxelize.h"
 #include "test_util.h"
 #include "tri_box_reference.h"
+#include "cli_test_util.h"
 
 namespace {
 
@@ -403,29 +404,9 @@ TEST(Voxelize, BadInputIsAClearError) {
 
 // --- CLI -----------------------------------------------------------------------------------
 
-struct RunResult {
-  int exit_code = -1;
-  std::string out, err;
-};
-
-std::string slurp(const fs::path& p) {
-  std::ifstream f(p, std::ios::binary);
-  std::stringstream ss;
-  ss << f.rdbuf();
-  return ss.str();
-}
-
-RunResult run_cli(const std::string& args, const fs::path& dir) {
-  const fs::path out = dir / "stdout.txt", err = dir / "stderr.txt";
-  const std::string cmd = std::string("'") + SPECULA_CLI_PATH + "' " + args + " >'" + out.string() + "' 2>'" +
-                          err.string() + "' </dev/null";
-  const int status = std::system(cmd.c_str());
-  RunResult r;
-  if (WIFEXITED(status)) r.exit_code = WEXITSTATUS(status);
-  r.out = slurp(out);
-  r.err = slurp(err);
-  return r;
-}
+using test::RunResult;
+using test::run_cli;
+using test::slurp;
 
 TEST(VoxelizeCli, XyzListsVoxelsInLexicographicOrder) {
   if (std::string(SPECULA_CLI_PATH).empty()) GTEST_SKIP() << "specula CLI not built";
