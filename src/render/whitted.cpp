@@ -20,6 +20,7 @@
 #include <atomic>
 #include <cmath>
 #include <cstring>
+#include <optional>
 #include <string>
 
 #include "core/hash.h"
@@ -307,8 +308,8 @@ Surface voxel_surface(const Context& ctx, const Segment& seg, const Hit& hit, Ma
 void shade_hit(const Context& ctx, Scratch& s, const Segment& seg, const Hit& hit,
                uint32_t global_pixel) {
   const Scene& scene = ctx.scene;
-  Material voxel_material;
-  const Surface sf = ctx.voxels ? voxel_surface(ctx, seg, hit, voxel_material) : triangle_surface(ctx, hit);
+  std::optional<Material> voxel_material;  // built only for voxel hits (off the triangle path)
+  const Surface sf = ctx.voxels ? voxel_surface(ctx, seg, hit, voxel_material.emplace()) : triangle_surface(ctx, hit);
   const Vec3& p = sf.p;
   const Vec3 d = normalize(seg.ray.dir);
   const Vec3& ng = sf.ng;
@@ -492,8 +493,8 @@ void render_tile(const Context& ctx, const SkyEval& sky, Scratch& s, const Pinho
       if (max_component(seg.weight) <= 0.0f) continue;
       shade_hit(ctx, s, seg, hit, static_cast<uint32_t>(gp));
       if (seg.primary && ctx.want_normal) {
-        Material unused;
-        const Surface sf = ctx.voxels ? voxel_surface(ctx, seg, hit, unused) : triangle_surface(ctx, hit);
+        std::optional<Material> unused;
+        const Surface sf = ctx.voxels ? voxel_surface(ctx, seg, hit, unused.emplace()) : triangle_surface(ctx, hit);
         Vec3 nrm = sf.ns != Vec3{} ? sf.ns : sf.ng;
         if (dot(nrm, seg.ray.dir) > 0.0f) nrm = -nrm;  // facing the camera
         ctx.film.normal[gp] = nrm;
