@@ -11,14 +11,21 @@
 // The SAH charges leaves per block of four triangles (the traversal tests a BvhTriangle4 block
 // at the price of about one triangle), so nodes of up to four triangles become leaves at once.
 //
+// On CPUs with AVX2 (checked at run time; the library is built for the x86-64 baseline) the
+// binning, the SAH sweeps and the partition run in AVX2 variants: a bin is one 256-bit
+// (lo, -hi) box grown by a single min, the three axes are swept at once, and a primitive
+// reference moves as one 32-byte load/store. They compute exactly the same floats as the SSE2
+// path, so the tree does not depend on the CPU either.
+//
 // Subtrees above a size threshold are built as TBB tasks; node pairs are allocated with an
 // atomic counter and renumbered depth-first afterwards, so the result (nodes, triangle order)
 // is identical for any thread count.
 #include <emmintrin.h>  // SSE2: part of the x86-64 baseline, no -march needed
+#include <immintrin.h>  // AVX2 paths: compiled per function (target attribute), chosen at run time
 
 #include <algorithm>
 #include <atomic>
-#include <functional>
+#include <bit>
 #include <cmath>
 #include <limits>
 #include <memory>
@@ -43,7 +50,7 @@ namespace {
 
 /// A primitive reference: triangle bounds; lo[3] holds the triangle index (as bits).
 /// Twice the centroid is lo + hi (we bin 2c to save a multiply; only ratios matter).
-struct alignas(16) PrimRef {
+struct alignas(32) PrimRef {
   float lo[4];
   float hi[4];
 
@@ -103,11 +110,6 @@ inline float half_area4(__m128 lo, __m128 hi) {
   return _mm_cvtss_f32(_mm_add_ss(s, _mm_movehl_ps(p, p)));
 }
 
-struct Bin {
-  RawBox box;
-  uint32_t count;
-};
-
 constexpr int kMaxBins = 256;
 /// Leaves are tested four triangles at a time (BvhTriangle4), so the SAH charges a leaf by its
 /// blocks of four, as Embree's BVH4/Triangle4 builder does: splitting four triangles or fewer
@@ -119,6 +121,17 @@ constexpr uint32_t kTaskThreshold = 4096;
 /// Beyond this depth the builder stops using SAH and halves index ranges, which bounds the
 /// depth (and so the traversal stack) at kMedianDepth + 32 whatever the input.
 constexpr uint32_t kMedianDepth = 64;
+
+/// half_area4 of three (lo, -hi) boxes at once (lane a = box a; lane 3 is junk), bit for bit.
+__attribute__((target("avx2"))) inline __m128 half_area_x3(__m256 b0, __m256 b1, __m256 b2) {
+  const __m128 e0 = _mm_add_ps(_mm256_castps256_ps128(b0), _mm256_extractf128_ps(b0, 1));
+  const __m128 e1 = _mm_add_ps(_mm256_castps256_ps128(b1), _mm256_extractf128_ps(b1, 1));
+  const __m128 e2 = _mm_add_ps(_mm256_castps256_ps128(b2), _mm256_extractf128_ps(b2, 1));
+  const __m128 t0 = _mm_unpacklo_ps(e0, e1), t1 = _mm_unpackhi_ps(e0, e1);  // x0 x1 y0 y1 | z0 z1 . .
+  const __m128 t2 = _mm_unpacklo_ps(e2, e2), t3 = _mm_unpackhi_ps(e2, e2);  // x2 x2 y2 y2 | z2 z2 . .
+  const __m128 ex = _mm_movelh_ps(t0, t2), ey = _mm_movehl_ps(t2, t0), ez = _mm_movelh_ps(t1, t3);
+  return _mm_add_ps(_mm_add_ps(_mm_mul_ps(ex, ey), _mm_mul_ps(ey, ez)), _mm_mul_ps(ez, ex));
+}
 
 struct Split {
   int axis = -1;
@@ -169,7 +182,7 @@ class BvhBuilder {
 
   /// Bins [first, first + count) on every axis with non-zero centroid extent and returns the
   /// cheapest split (axis -1 when all centroids coincide).
-  Split find_split(uint32_t first, uint32_t count, const Box4& cbounds) const {
+  __attribute__((noinline)) Split find_split(uint32_t first, uint32_t count, const Box4& cbounds) const {
     alignas(16) float cmin[4], cext[4], scale[4];
     _mm_store_ps(cmin, cbounds.lo);
     _mm_store_ps(cext, _mm_sub_ps(cbounds.hi, cbounds.lo));
@@ -181,70 +194,272 @@ class BvhBuilder {
     scale[3] = 0.0f;
     const __m128 vmin = cbounds.lo, vscale = _mm_load_ps(scale);
     const __m128 vmaxbin = _mm_set1_ps(fbins - 1.0f);
+    // Bin index vector -> packed index: axis a's bins at a * nb (a few cache lines instead of
+    // 3 x 256 bins spaced apart, whose equal low address bits made loads of one axis wait on
+    // stores of another: 4K aliasing). Lane 3 is never read.
+    const __m128i voff = _mm_setr_epi32(0, nb, 2 * nb, 0);
 
-    // Packed per node (axis a's bins at a * nb): a few cache lines instead of 3 x 256 bins
-    // spaced 3 x 4 KiB apart, whose equal low address bits made loads of one axis wait on
-    // stores of another (4K aliasing).
-    Bin bin_store[3 * kMaxBins];
-    Bin* bins[3] = {bin_store, bin_store + nb, bin_store + 2 * nb};
+    // Large nodes bin into two sets (even / odd primitives), as Embree does: consecutive
+    // primitives are spatially close and often land in the same bin, and one set would chain
+    // every update on the store of the previous one. Counts live apart from the boxes.
+    const int sets = count >= 64 ? 2 : 1;
+    const int stride = 3 * nb;
+    RawBox box[2 * 3 * kMaxBins];
+    alignas(16) uint32_t cnt[2 * 3 * kMaxBins];
     const __m128 empty_lo = _mm_set1_ps(kInf), empty_hi = _mm_set1_ps(-kInf);
-    for (int a = 0; a < 3; ++a)
-      for (int i = 0; i < nb; ++i) bins[a][i] = {{empty_lo, empty_hi}, 0};
+    for (int i = 0; i < sets * stride; ++i) box[i] = {empty_lo, empty_hi}, cnt[i] = 0;
     const PrimRef* refs = refs_ + first;
-    for (uint32_t i = 0; i < count; ++i) {
-      const __m128 lo = _mm_load_ps(refs[i].lo), hi = _mm_load_ps(refs[i].hi);
-      const __m128 c = _mm_add_ps(lo, hi);
-      const __m128 f = _mm_min_ps(_mm_mul_ps(_mm_sub_ps(c, vmin), vscale), vmaxbin);
-      alignas(16) int32_t b[4];
-      _mm_store_si128(reinterpret_cast<__m128i*>(b), _mm_cvttps_epi32(f));
-      for (int a = 0; a < 3; ++a) {
-        Bin& bin = bins[a][b[a]];
-        bin.box.lo = _mm_min_ps(bin.box.lo, lo);
-        bin.box.hi = _mm_max_ps(bin.box.hi, hi);
-        ++bin.count;
+    const auto bin_of = [&](const PrimRef& r, __m128& lo, __m128& hi) {
+      lo = _mm_load_ps(r.lo), hi = _mm_load_ps(r.hi);
+      const __m128 f = _mm_min_ps(_mm_mul_ps(_mm_sub_ps(_mm_add_ps(lo, hi), vmin), vscale), vmaxbin);
+      return _mm_add_epi32(_mm_cvttps_epi32(f), voff);
+    };
+    const auto add = [&](RawBox* bx, uint32_t* cn, __m128i bi, __m128 lo, __m128 hi) {
+      const int b0 = _mm_cvtsi128_si32(bi);
+      const int b1 = _mm_cvtsi128_si32(_mm_shuffle_epi32(bi, _MM_SHUFFLE(1, 1, 1, 1)));
+      const int b2 = _mm_cvtsi128_si32(_mm_shuffle_epi32(bi, _MM_SHUFFLE(2, 2, 2, 2)));
+      bx[b0].lo = _mm_min_ps(bx[b0].lo, lo), bx[b0].hi = _mm_max_ps(bx[b0].hi, hi), ++cn[b0];
+      bx[b1].lo = _mm_min_ps(bx[b1].lo, lo), bx[b1].hi = _mm_max_ps(bx[b1].hi, hi), ++cn[b1];
+      bx[b2].lo = _mm_min_ps(bx[b2].lo, lo), bx[b2].hi = _mm_max_ps(bx[b2].hi, hi), ++cn[b2];
+    };
+    uint32_t i = 0;
+    if (sets == 2) {
+      for (; i + 1 < count; i += 2) {
+        __m128 lo0, hi0, lo1, hi1;
+        const __m128i b0 = bin_of(refs[i], lo0, hi0), b1 = bin_of(refs[i + 1], lo1, hi1);
+        add(box, cnt, b0, lo0, hi0);
+        add(box + stride, cnt + stride, b1, lo1, hi1);
+      }
+      for (int k = 0; k < 3 * nb; ++k) {
+        box[k].lo = _mm_min_ps(box[k].lo, box[stride + k].lo);
+        box[k].hi = _mm_max_ps(box[k].hi, box[stride + k].hi);
+        cnt[k] += cnt[stride + k];
       }
     }
+    for (; i < count; ++i) {
+      __m128 lo, hi;
+      const __m128i b = bin_of(refs[i], lo, hi);
+      add(box, cnt, b, lo, hi);
+    }
 
-    Split best;
-    float right_area[kMaxBins];
-    uint32_t right_count[kMaxBins];
-    RawBox right_box[kMaxBins];
+    // Sweeps: right to left for the right sides' costs, then left to right; only the cost is
+    // kept per plane, the winner's boxes are gathered from its bins afterwards.
+    float best_cost = kInf;
+    int best_axis = -1, best_bin = 0;
+    float right_cost[kMaxBins];
     for (int a = 0; a < 3; ++a) {
       if (!(cext[a] > 0.0f)) continue;
-      // Right-to-left sweep: bounds and counts of bins [i, bins).
-      Box4 acc;
+      const RawBox* bx = box + a * nb;
+      const uint32_t* cn = cnt + a * nb;
+      __m128 rlo = empty_lo, rhi = empty_hi;
       uint32_t n = 0;
-      for (int i = nb - 1; i > 0; --i) {
-        acc.grow(bins[a][i].box);
-        n += bins[a][i].count;
-        right_box[i] = {acc.lo, acc.hi};
-        right_area[i] = half_area4(acc.lo, acc.hi);
-        right_count[i] = n;
+      for (int k = nb - 1; k > 0; --k) {
+        rlo = _mm_min_ps(rlo, bx[k].lo), rhi = _mm_max_ps(rhi, bx[k].hi);
+        n += cn[k];
+        right_cost[k] = n == 0 ? kInf : half_area4(rlo, rhi) * blocks(n);
       }
-      // Left-to-right sweep; candidate plane between bin i - 1 and bin i.
-      Box4 lacc;
+      __m128 llo = empty_lo, lhi = empty_hi;
       uint32_t ln = 0;
-      for (int i = 1; i < nb; ++i) {
-        lacc.grow(bins[a][i - 1].box);
-        ln += bins[a][i - 1].count;
-        if (ln == 0 || right_count[i] == 0) continue;
-        const float cost = half_area4(lacc.lo, lacc.hi) * blocks(ln) + right_area[i] * blocks(right_count[i]);
-        if (cost < best.cost) {
-          best.cost = cost;
-          best.axis = a;
-          best.bin = i;
-          best.left = lacc;
-          best.right = Box4(right_box[i]);
-          best.left_count = ln;
-        }
+      for (int k = 1; k < nb; ++k) {
+        llo = _mm_min_ps(llo, bx[k - 1].lo), lhi = _mm_max_ps(lhi, bx[k - 1].hi);
+        ln += cn[k - 1];
+        if (ln == 0 || right_cost[k] == kInf) continue;
+        const float cost = half_area4(llo, lhi) * blocks(ln) + right_cost[k];
+        if (cost < best_cost) best_cost = cost, best_axis = a, best_bin = k;
       }
     }
-    if (best.axis >= 0) {
-      best.bin_min = cmin[best.axis];
-      best.bin_scale = scale[best.axis];
+    Split best;
+    if (best_axis >= 0) {
+      best.cost = best_cost;
+      best.axis = best_axis;
+      best.bin = best_bin;
+      const RawBox* bx = box + best_axis * nb;
+      const uint32_t* cn = cnt + best_axis * nb;
+      for (int k = 0; k < best_bin; ++k) best.left.grow(bx[k]), best.left_count += cn[k];
+      for (int k = best_bin; k < nb; ++k) best.right.grow(bx[k]);
+      best.bin_min = cmin[best_axis];
+      best.bin_scale = scale[best_axis];
       best.bin_count = nb;
     }
     return best;
+  }
+
+  // AVX2 variants of find_split and partition (same arithmetic, so the same tree). A bin is one
+  // 256-bit register (lo.xyzw, -hi.xyzw): a single min grows both corners (-max(a, b) is
+  // exactly min(-a, -b)), and a primitive reference is a single 32-byte load.
+  __attribute__((target("avx2"), noinline)) Split find_split_avx2(uint32_t first, uint32_t count,
+                                                                   const Box4& cbounds) const {
+    alignas(16) float cmin[4], cext[4], scale[4];
+    _mm_store_ps(cmin, cbounds.lo);
+    _mm_store_ps(cext, _mm_sub_ps(cbounds.hi, cbounds.lo));
+    const int nb = std::min(bins_, std::max(4, static_cast<int>(count)));
+    const float fbins = static_cast<float>(nb);
+    for (int a = 0; a < 3; ++a) scale[a] = cext[a] > 0.0f ? fbins / cext[a] : 0.0f;
+    scale[3] = 0.0f;
+    const __m128 vmin = cbounds.lo, vscale = _mm_load_ps(scale);
+    const __m128 vmaxbin = _mm_set1_ps(fbins - 1.0f);
+    const __m128i voff = _mm_setr_epi32(0, nb, 2 * nb, 0);
+    const __m256 neg_hi = _mm256_setr_ps(0.0f, 0.0f, 0.0f, 0.0f, -0.0f, -0.0f, -0.0f, -0.0f);
+    const __m256 empty = _mm256_set1_ps(kInf);
+
+    const int sets = count >= 64 ? 2 : 1;
+    const int stride = 3 * nb;
+    __m256 box[2 * 3 * kMaxBins];
+    alignas(32) uint32_t cnt[2 * 3 * kMaxBins + 8];
+    for (int i = 0; i < sets * stride; ++i) box[i] = empty;
+    // (A vector loop: the compiler's memset call costs more than the few counts of a small node.)
+    for (int i = 0; i < sets * stride; i += 8)
+      _mm256_store_si256(reinterpret_cast<__m256i*>(cnt + i), _mm256_setzero_si256());
+    const PrimRef* refs = refs_ + first;
+    uint32_t i = 0;
+    if (sets == 2) {
+      __m256* box1 = box + stride;
+      uint32_t* cnt1 = cnt + stride;
+      for (; i + 1 < count; i += 2) {
+        const __m256 v0 = _mm256_load_ps(refs[i].lo), v1 = _mm256_load_ps(refs[i + 1].lo);
+        const __m128 c0 = _mm_add_ps(_mm256_castps256_ps128(v0), _mm256_extractf128_ps(v0, 1));
+        const __m128 c1 = _mm_add_ps(_mm256_castps256_ps128(v1), _mm256_extractf128_ps(v1, 1));
+        const __m128i bi0 = _mm_add_epi32(
+            _mm_cvttps_epi32(_mm_min_ps(_mm_mul_ps(_mm_sub_ps(c0, vmin), vscale), vmaxbin)), voff);
+        const __m128i bi1 = _mm_add_epi32(
+            _mm_cvttps_epi32(_mm_min_ps(_mm_mul_ps(_mm_sub_ps(c1, vmin), vscale), vmaxbin)), voff);
+        const __m256 n0 = _mm256_xor_ps(v0, neg_hi), n1 = _mm256_xor_ps(v1, neg_hi);
+        const uint32_t a0 = static_cast<uint32_t>(_mm_cvtsi128_si32(bi0)), a1 = static_cast<uint32_t>(_mm_extract_epi32(bi0, 1)),
+                       a2 = static_cast<uint32_t>(_mm_extract_epi32(bi0, 2));
+        const uint32_t b0 = static_cast<uint32_t>(_mm_cvtsi128_si32(bi1)), b1 = static_cast<uint32_t>(_mm_extract_epi32(bi1, 1)),
+                       b2 = static_cast<uint32_t>(_mm_extract_epi32(bi1, 2));
+        box[a0] = _mm256_min_ps(box[a0], n0), ++cnt[a0];
+        box1[b0] = _mm256_min_ps(box1[b0], n1), ++cnt1[b0];
+        box[a1] = _mm256_min_ps(box[a1], n0), ++cnt[a1];
+        box1[b1] = _mm256_min_ps(box1[b1], n1), ++cnt1[b1];
+        box[a2] = _mm256_min_ps(box[a2], n0), ++cnt[a2];
+        box1[b2] = _mm256_min_ps(box1[b2], n1), ++cnt1[b2];
+      }
+      for (int k = 0; k < stride; ++k) box[k] = _mm256_min_ps(box[k], box1[k]), cnt[k] += cnt1[k];
+    }
+    for (; i < count; ++i) {
+      const __m256 v = _mm256_load_ps(refs[i].lo);
+      const __m128 c = _mm_add_ps(_mm256_castps256_ps128(v), _mm256_extractf128_ps(v, 1));
+      const __m128i bi = _mm_add_epi32(
+          _mm_cvttps_epi32(_mm_min_ps(_mm_mul_ps(_mm_sub_ps(c, vmin), vscale), vmaxbin)), voff);
+      const __m256 nv = _mm256_xor_ps(v, neg_hi);
+      const uint32_t a0 = static_cast<uint32_t>(_mm_cvtsi128_si32(bi)), a1 = static_cast<uint32_t>(_mm_extract_epi32(bi, 1)),
+                     a2 = static_cast<uint32_t>(_mm_extract_epi32(bi, 2));
+      box[a0] = _mm256_min_ps(box[a0], nv), ++cnt[a0];
+      box[a1] = _mm256_min_ps(box[a1], nv), ++cnt[a1];
+      box[a2] = _mm256_min_ps(box[a2], nv), ++cnt[a2];
+    }
+
+    // Sweeps of the three axes at once, lane a = axis a. Half areas from (lo, -hi): lo + (-hi)
+    // is exactly -(hi - lo), the products of two negated extents are the products of the
+    // extents, and the sums run in half_area4's order, so every cost has find_split's bits.
+    __m128i cntv[kMaxBins];
+    for (int k = 0; k < nb; ++k) cntv[k] = _mm_setr_epi32(static_cast<int>(cnt[k]), static_cast<int>(cnt[nb + k]),
+                                                           static_cast<int>(cnt[2 * nb + k]), 0);
+    const __m128 vinf = _mm_set1_ps(kInf);
+    const __m128i three = _mm_set1_epi32(3), zero = _mm_setzero_si128();
+    const __m256* b0 = box;
+    const __m256* b1 = box + nb;
+    const __m256* b2 = box + 2 * nb;
+    __m128 rcost[kMaxBins];
+    {
+      __m256 acc0 = empty, acc1 = empty, acc2 = empty;
+      __m128i n = zero;
+      for (int k = nb - 1; k > 0; --k) {
+        acc0 = _mm256_min_ps(acc0, b0[k]), acc1 = _mm256_min_ps(acc1, b1[k]), acc2 = _mm256_min_ps(acc2, b2[k]);
+        n = _mm_add_epi32(n, cntv[k]);
+        const __m128 area = half_area_x3(acc0, acc1, acc2);
+        const __m128 blk = _mm_cvtepi32_ps(_mm_srli_epi32(_mm_add_epi32(n, three), 2));
+        rcost[k] = _mm_blendv_ps(_mm_mul_ps(area, blk), vinf, _mm_castsi128_ps(_mm_cmpeq_epi32(n, zero)));
+      }
+    }
+    __m128 bestc = vinf;
+    __m128i bestk = zero;
+    {
+      __m256 acc0 = empty, acc1 = empty, acc2 = empty;
+      __m128i n = zero;
+      for (int k = 1; k < nb; ++k) {
+        acc0 = _mm256_min_ps(acc0, b0[k - 1]), acc1 = _mm256_min_ps(acc1, b1[k - 1]),
+        acc2 = _mm256_min_ps(acc2, b2[k - 1]);
+        n = _mm_add_epi32(n, cntv[k - 1]);
+        const __m128 area = half_area_x3(acc0, acc1, acc2);
+        const __m128 blk = _mm_cvtepi32_ps(_mm_srli_epi32(_mm_add_epi32(n, three), 2));
+        const __m128 skip = _mm_or_ps(_mm_castsi128_ps(_mm_cmpeq_epi32(n, zero)), _mm_cmpeq_ps(rcost[k], vinf));
+        const __m128 cost = _mm_blendv_ps(_mm_add_ps(_mm_mul_ps(area, blk), rcost[k]), vinf, skip);
+        const __m128 better = _mm_cmplt_ps(cost, bestc);
+        bestc = _mm_blendv_ps(bestc, cost, better);
+        bestk = _mm_blendv_epi8(bestk, _mm_set1_epi32(k), _mm_castps_si128(better));
+      }
+    }
+    alignas(16) float bc[4];
+    alignas(16) int32_t bk[4];
+    _mm_store_ps(bc, bestc);
+    _mm_store_si128(reinterpret_cast<__m128i*>(bk), bestk);
+    float best_cost = kInf;
+    int best_axis = -1, best_bin = 0;
+    for (int a = 0; a < 3; ++a)
+      if (cext[a] > 0.0f && bc[a] < best_cost) best_cost = bc[a], best_axis = a, best_bin = bk[a];
+    Split best;
+    if (best_axis >= 0) {
+      best.cost = best_cost;
+      best.axis = best_axis;
+      best.bin = best_bin;
+      const __m256* bx = box + best_axis * nb;
+      const uint32_t* cn = cnt + best_axis * nb;
+      __m256 l = empty, r = empty;
+      for (int k = 0; k < best_bin; ++k) l = _mm256_min_ps(l, bx[k]), best.left_count += cn[k];
+      for (int k = best_bin; k < nb; ++k) r = _mm256_min_ps(r, bx[k]);
+      l = _mm256_xor_ps(l, neg_hi), r = _mm256_xor_ps(r, neg_hi);
+      best.left.lo = _mm256_castps256_ps128(l), best.left.hi = _mm256_extractf128_ps(l, 1);
+      best.right.lo = _mm256_castps256_ps128(r), best.right.hi = _mm256_extractf128_ps(r, 1);
+      best.bin_min = cmin[best_axis];
+      best.bin_scale = scale[best_axis];
+      best.bin_count = nb;
+    }
+    return best;
+  }
+
+  __attribute__((target("avx2"))) uint32_t partition_avx2(uint32_t first, uint32_t count, const Split& split,
+                                                          Box4& lcb, Box4& rcb) const {
+    switch (split.axis) {
+      case 0: return partition_axis_avx2<0>(first, count, split, lcb, rcb);
+      case 1: return partition_axis_avx2<1>(first, count, split, lcb, rcb);
+      default: return partition_axis_avx2<2>(first, count, split, lcb, rcb);
+    }
+  }
+
+  /// As partition_axis; the centroid bounds of each side are kept as (c, -c) boxes grown by
+  /// one blend and one min.
+  template <int Axis>
+  __attribute__((target("avx2"))) uint32_t partition_axis_avx2(uint32_t first, uint32_t count, const Split& split,
+                                                               Box4& lcb, Box4& rcb) const {
+    // int(min(x, bins - 1)) < bin  <=>  x < bin for every x (bin <= bins - 1; NaN goes right
+    // both ways), so the float compare makes exactly find_split's decision.
+    const __m128 vmin = _mm_set1_ps(split.bin_min), vscale = _mm_set1_ps(split.bin_scale);
+    const __m128 vbin = _mm_set1_ps(static_cast<float>(split.bin));
+    const __m256 neg_hi = _mm256_setr_ps(0.0f, 0.0f, 0.0f, 0.0f, -0.0f, -0.0f, -0.0f, -0.0f);
+    const __m256 empty = _mm256_set1_ps(kInf);
+    __m256 lb = _mm256_xor_ps(_mm256_setr_m128(lcb.lo, lcb.hi), neg_hi);
+    __m256 rb = _mm256_xor_ps(_mm256_setr_m128(rcb.lo, rcb.hi), neg_hi);
+    PrimRef* refs = refs_;
+    uint32_t i = first;
+    for (uint32_t k = first; k < first + count; ++k) {
+      const __m256 v = _mm256_load_ps(refs[k].lo);
+      const __m128 c = _mm_add_ps(_mm256_castps256_ps128(v), _mm256_extractf128_ps(v, 1));
+      const __m128 lt = _mm_cmplt_ps(_mm_mul_ps(_mm_sub_ps(c, vmin), vscale), vbin);
+      const __m128 m = _mm_permute_ps(lt, _MM_SHUFFLE(Axis, Axis, Axis, Axis));
+      const __m256 m8 = _mm256_setr_m128(m, m);
+      const __m256 cc = _mm256_xor_ps(_mm256_setr_m128(c, c), neg_hi);  // (c, -c)
+      lb = _mm256_min_ps(lb, _mm256_blendv_ps(empty, cc, m8));
+      rb = _mm256_min_ps(rb, _mm256_blendv_ps(cc, empty, m8));
+      _mm256_store_ps(refs[k].lo, _mm256_load_ps(refs[i].lo));
+      _mm256_store_ps(refs[i].lo, v);
+      i += static_cast<uint32_t>(_mm_movemask_ps(m)) & 1u;
+    }
+    lb = _mm256_xor_ps(lb, neg_hi), rb = _mm256_xor_ps(rb, neg_hi);
+    lcb.lo = _mm256_castps256_ps128(lb), lcb.hi = _mm256_extractf128_ps(lb, 1);
+    rcb.lo = _mm256_castps256_ps128(rb), rcb.hi = _mm256_extractf128_ps(rb, 1);
+    return i;
   }
 
   void build(uint32_t node_index, uint32_t first, uint32_t count, const Box4& bounds,
@@ -276,13 +491,13 @@ class BvhBuilder {
       mid = first + 1;
       split_found = true;
     } else if (depth < kMedianDepth) {
-      const Split split = find_split(first, count, cbounds);
+      const Split split = avx2_ ? find_split_avx2(first, count, cbounds) : find_split(first, count, cbounds);
       if (split.axis >= 0) {
         const float leaf_cost = blocks(count);
         const float area = bounds.half_area();
         const float split_cost = traversal_cost_ + (area > 0.0f ? split.cost / area : leaf_cost);
         if (split_cost < leaf_cost || count > max_leaf_) {
-          mid = partition(first, count, split, lcb, rcb);
+          mid = avx2_ ? partition_avx2(first, count, split, lcb, rcb) : partition(first, count, split, lcb, rcb);
           lbox = split.left;
           rbox = split.right;
           split_found = mid > first && mid < first + count;
@@ -328,26 +543,44 @@ class BvhBuilder {
   /// of the right side and fills the centroid bounds of both sides. Uses exactly the binning
   /// arithmetic of find_split, so the sides match the counted bins.
   uint32_t partition(uint32_t first, uint32_t count, const Split& split, Box4& lcb, Box4& rcb) const {
-    const int axis = split.axis;
-    const float bmin = split.bin_min, bscale = split.bin_scale;
-    const float maxbin = static_cast<float>(split.bin_count) - 1.0f;
+    switch (split.axis) {
+      case 0: return partition_axis<0>(first, count, split, lcb, rcb);
+      case 1: return partition_axis<1>(first, count, split, lcb, rcb);
+      default: return partition_axis<2>(first, count, split, lcb, rcb);
+    }
+  }
+
+  template <int Axis>
+  uint32_t partition_axis(uint32_t first, uint32_t count, const Split& split, Box4& lcb, Box4& rcb) const {
+    const __m128 vmin = _mm_set1_ps(split.bin_min), vscale = _mm_set1_ps(split.bin_scale);
+    const __m128 vmaxbin = _mm_set1_ps(static_cast<float>(split.bin_count) - 1.0f);
+    const __m128i vbin = _mm_set1_epi32(split.bin);
     // Branchless Lomuto partition: which side a primitive goes to is a coin flip for the branch
     // predictor, so every element is swapped into place unconditionally and the left end only
     // advances for left elements; centroid bounds are grown through masks.
     const __m128 empty_lo = _mm_set1_ps(kInf), empty_hi = _mm_set1_ps(-kInf);
+    __m128 llo = lcb.lo, lhi = lcb.hi, rlo = rcb.lo, rhi = rcb.hi;
+    PrimRef* refs = refs_;
     uint32_t i = first;
     for (uint32_t k = first; k < first + count; ++k) {
-      PrimRef r = refs_[k];
-      const __m128 c = _mm_add_ps(_mm_load_ps(r.lo), _mm_load_ps(r.hi));
-      const float ca = r.lo[axis] + r.hi[axis];
-      const bool left = static_cast<int>(std::min((ca - bmin) * bscale, maxbin)) < split.bin;
-      const __m128 m = _mm_castsi128_ps(_mm_set1_epi32(left ? -1 : 0));
-      lcb.grow(_mm_or_ps(_mm_and_ps(m, c), _mm_andnot_ps(m, empty_lo)), _mm_or_ps(_mm_and_ps(m, c), _mm_andnot_ps(m, empty_hi)));
-      rcb.grow(_mm_or_ps(_mm_andnot_ps(m, c), _mm_and_ps(m, empty_lo)), _mm_or_ps(_mm_andnot_ps(m, c), _mm_and_ps(m, empty_hi)));
-      refs_[k] = refs_[i];
-      refs_[i] = r;
-      i += left ? 1u : 0u;
+      const __m128 lo = _mm_load_ps(refs[k].lo), hi = _mm_load_ps(refs[k].hi);
+      const __m128 c = _mm_add_ps(lo, hi);
+      // The bin index as find_split computes it (the other lanes are ignored).
+      const __m128i b = _mm_cvttps_epi32(_mm_min_ps(_mm_mul_ps(_mm_sub_ps(c, vmin), vscale), vmaxbin));
+      const __m128 m = _mm_castsi128_ps(
+          _mm_shuffle_epi32(_mm_cmplt_epi32(b, vbin), _MM_SHUFFLE(Axis, Axis, Axis, Axis)));
+      const __m128 mc = _mm_and_ps(m, c), nc = _mm_andnot_ps(m, c);
+      llo = _mm_min_ps(llo, _mm_or_ps(mc, _mm_andnot_ps(m, empty_lo)));
+      lhi = _mm_max_ps(lhi, _mm_or_ps(mc, _mm_andnot_ps(m, empty_hi)));
+      rlo = _mm_min_ps(rlo, _mm_or_ps(nc, _mm_and_ps(m, empty_lo)));
+      rhi = _mm_max_ps(rhi, _mm_or_ps(nc, _mm_and_ps(m, empty_hi)));
+      _mm_store_ps(refs[k].lo, _mm_load_ps(refs[i].lo));
+      _mm_store_ps(refs[k].hi, _mm_load_ps(refs[i].hi));
+      _mm_store_ps(refs[i].lo, lo);
+      _mm_store_ps(refs[i].hi, hi);
+      i += static_cast<uint32_t>(_mm_movemask_ps(m)) & 1u;
     }
+    lcb.lo = llo, lcb.hi = lhi, rcb.lo = rlo, rcb.hi = rhi;
     return i;
   }
 
@@ -361,6 +594,7 @@ class BvhBuilder {
   }
 
   PrimRef* refs_;
+  bool avx2_ = __builtin_cpu_supports("avx2");
   BvhNode* nodes_;
   int bins_;
   uint32_t max_leaf_;
@@ -384,7 +618,10 @@ struct RootBounds {
 
 Bvh Bvh::build(const TriangleInput& input, const BvhOptions& options, BuildInfo* info) {
   const Timer timer;
-  accel::validate_input(input);
+  // Validation is fused into the reference pass below (indices in range there; a non-finite
+  // vertex always makes its triangle degenerate, so only those are checked for finiteness).
+  // Any problem found hands over to accel::validate_input, which throws naming the first one.
+  if (input.indices.size() % 3 != 0 || input.indices.size() / 3 > 0xFFFFFFF0u) accel::validate_input(input);
   const size_t tri_count = input.indices.size() / 3;
   const uint32_t n = static_cast<uint32_t>(tri_count);
   const int threads = options.threads > 0 ? options.threads : tbb::info::default_concurrency();
@@ -397,30 +634,48 @@ Bvh Bvh::build(const TriangleInput& input, const BvhOptions& options, BuildInfo*
     //    accel::is_degenerate); the references of the others are compacted afterwards.
     std::unique_ptr<PrimRef[]> refs(new PrimRef[tri_count > 0 ? tri_count : 1]);
     std::unique_ptr<uint8_t[]> degenerate(new uint8_t[tri_count > 0 ? tri_count : 1]);
-    const auto make_refs = [&](uint32_t begin, uint32_t end, RootBounds& rb) {
+    std::atomic<bool> invalid{false};
+    const size_t vcount = input.positions.size();
+    // compact (serial pass): references are written packed at refs[*compact] and the degenerate
+    // flags are not needed; otherwise at refs[i], compacted afterwards.
+    const auto make_refs = [&](uint32_t begin, uint32_t end, RootBounds& rb, uint32_t* compact) {
       for (uint32_t i = begin; i < end; ++i) {
-        const Vec3& a = input.positions[input.indices[3 * size_t{i}]];
-        const Vec3& b = input.positions[input.indices[3 * size_t{i} + 1]];
-        const Vec3& c = input.positions[input.indices[3 * size_t{i} + 2]];
-        degenerate[i] = accel::is_degenerate(a, b, c) ? 1 : 0;
-        if (degenerate[i]) continue;
+        const uint32_t i0 = input.indices[3 * size_t{i}], i1 = input.indices[3 * size_t{i} + 1],
+                       i2 = input.indices[3 * size_t{i} + 2];
+        if (i0 >= vcount || i1 >= vcount || i2 >= vcount) [[unlikely]] {
+          invalid.store(true, std::memory_order_relaxed);
+          if (!compact) degenerate[i] = 1;
+          continue;
+        }
+        const Vec3& a = input.positions[i0];
+        const Vec3& b = input.positions[i1];
+        const Vec3& c = input.positions[i2];
+        const bool degen = accel::is_degenerate(a, b, c);
+        if (!compact) degenerate[i] = degen ? 1 : 0;
+        if (degen) {
+          if (!is_finite(a) || !is_finite(b) || !is_finite(c)) invalid.store(true, std::memory_order_relaxed);
+          continue;
+        }
         const Vec3 lo = min(a, min(b, c)), hi = max(a, max(b, c));
-        PrimRef& r = refs[i];
-        r.lo[0] = lo.x, r.lo[1] = lo.y, r.lo[2] = lo.z;
-        __builtin_memcpy(&r.lo[3], &i, sizeof(i));
-        r.hi[0] = hi.x, r.hi[1] = hi.y, r.hi[2] = hi.z, r.hi[3] = 0.0f;
-        const __m128 l4 = _mm_load_ps(r.lo), h4 = _mm_load_ps(r.hi);
+        PrimRef& r = refs[compact ? (*compact)++ : i];
+        // Built in registers and stored whole (reloading scalar stores as vectors stalls).
+        const __m128 l4 = _mm_setr_ps(lo.x, lo.y, lo.z, std::bit_cast<float>(i));
+        const __m128 h4 = _mm_setr_ps(hi.x, hi.y, hi.z, 0.0f);
+        _mm_store_ps(r.lo, l4);
+        _mm_store_ps(r.hi, h4);
         rb.box.grow(l4, h4);
         const __m128 c4 = _mm_add_ps(l4, h4);
         rb.cbox.grow(c4, c4);
       }
     };
     RootBounds root;
-    if (parallel && n > kTaskThreshold) {
+    uint32_t valid = 0;
+    const bool parallel_refs = parallel && n > kTaskThreshold;
+    if (parallel_refs) {
       root = tbb::parallel_reduce(
           tbb::blocked_range<uint32_t>(0, n, 1024), RootBounds{},
           [&](const tbb::blocked_range<uint32_t>& r, RootBounds rb) {
-            make_refs(r.begin(), r.end(), rb);
+            make_refs(r.begin(), r.end(), rb, nullptr);
             return rb;
           },
           [](RootBounds a, const RootBounds& b) {
@@ -428,19 +683,35 @@ Bvh Bvh::build(const TriangleInput& input, const BvhOptions& options, BuildInfo*
             return a;
           });
     } else {
-      make_refs(0, n, root);
+      make_refs(0, n, root, &valid);
     }
-    uint32_t valid = 0;
-    for (uint32_t i = 0; i < n; ++i) {
-      if (degenerate[i]) continue;
-      if (valid != i) refs[valid] = refs[i];
-      ++valid;
+    if (!invalid.load() && !input.transmittance.empty()) {
+      if (input.transmittance.size() != tri_count) invalid = true;
+      for (const Vec3& t : input.transmittance)
+        if (!is_finite(t) || t.x < 0.0f || t.y < 0.0f || t.z < 0.0f) invalid = true;
+    }
+    if (invalid.load()) {
+      accel::validate_input(input);  // throws, naming the first problem
+      throw Error("triangle input: invalid");
+    }
+    if (parallel_refs) {
+      for (uint32_t i = 0; i < n; ++i) {
+        if (degenerate[i]) continue;
+        if (valid != i) refs[valid] = refs[i];
+        ++valid;
+      }
     }
     // (Lane 3 of the bounds carries id bits; nothing reads it: only xyz reach the nodes.)
 
     // 2. Tree. At most 2n - 1 nodes plus the padding node.
     const size_t max_nodes = std::max<size_t>(2 * size_t{valid}, 2);
-    std::unique_ptr<BvhNode[]> nodes(new BvhNode[max_nodes]);
+    // Raw storage: value-initialising 2n nodes would write (and fault in) several MB of which
+    // only the used part is ever read; every used node is written by the builder.
+    struct FreeNodes {
+      void operator()(BvhNode* p) const { ::operator delete(p, std::align_val_t{alignof(BvhNode)}); }
+    };
+    std::unique_ptr<BvhNode, FreeNodes> nodes(
+        static_cast<BvhNode*>(::operator new(max_nodes * sizeof(BvhNode), std::align_val_t{alignof(BvhNode)})));
     BvhBuilder builder(options, refs, nodes.get());
     builder.build_root(valid, root.box, root.cbox, parallel && valid > kTaskThreshold);
     const uint32_t used = builder.node_count();
@@ -451,19 +722,19 @@ Bvh Bvh::build(const TriangleInput& input, const BvhOptions& options, BuildInfo*
       // subtree first), which is exactly the single-threaded layout, so the node array is
       // identical for any thread count and subtrees are contiguous in memory.
       bvh.nodes_.resize(used);
-      bvh.nodes_[0] = nodes[0];
+      bvh.nodes_[0] = nodes.get()[0];
       uint32_t next = 2;
       std::vector<std::pair<uint32_t, uint32_t>> todo{{0u, 0u}};  // (old index, new index)
       while (!todo.empty()) {
         const auto [old_index, new_index] = todo.back();
         todo.pop_back();
-        const BvhNode& src = nodes[old_index];
+        const BvhNode& src = nodes.get()[old_index];
         if (src.is_leaf()) continue;
         const uint32_t left = next;
         next += 2;
         bvh.nodes_[new_index].left_first = left;
-        bvh.nodes_[left] = nodes[src.left_first];
-        bvh.nodes_[left + 1] = nodes[src.left_first + 1];
+        bvh.nodes_[left] = nodes.get()[src.left_first];
+        bvh.nodes_[left + 1] = nodes.get()[src.left_first + 1];
         todo.push_back({src.left_first + 1, left + 1});
         todo.push_back({src.left_first, left});
       }
@@ -472,8 +743,14 @@ Bvh Bvh::build(const TriangleInput& input, const BvhOptions& options, BuildInfo*
     if (valid == 0) bvh.nodes_[0] = BvhNode{};
 
     // 3. Triangles and transmittance in BVH order.
-    bvh.tris_.resize(valid);
-    bvh.prim_ids_.resize(valid);
+    const bool parallel_reorder = parallel && valid > kTaskThreshold;
+    if (parallel_reorder) {
+      bvh.tris_.resize(valid);
+      bvh.prim_ids_.resize(valid);
+    } else {  // appended below: resize() would zero the arrays first
+      bvh.tris_.reserve(valid);
+      bvh.prim_ids_.reserve(valid);
+    }
     const bool any_transparent =
         std::any_of(input.transmittance.begin(), input.transmittance.end(),
                     [](const Vec3& t) { return !accel::is_opaque(t); });
@@ -492,11 +769,33 @@ Bvh Bvh::build(const TriangleInput& input, const BvhOptions& options, BuildInfo*
         if (any_transparent) bvh.transmittance_[i] = input.transmittance[id];
       }
     };
-    if (parallel && valid > kTaskThreshold) {
+    if (parallel_reorder) {
       tbb::parallel_for(tbb::blocked_range<uint32_t>(0, valid, 4096),
                         [&](const tbb::blocked_range<uint32_t>& r) { reorder(r.begin(), r.end()); });
     } else {
-      reorder(0, valid);
+      // The ids are in BVH order, so the index reads miss the cache: prefetch them well ahead
+      // and the positions they name a little ahead.
+      constexpr uint32_t kAheadIdx = 24, kAheadPos = 8;
+      for (uint32_t i = 0; i < valid; ++i) {
+        if (i + kAheadIdx < valid) __builtin_prefetch(&input.indices[3 * size_t{refs[i + kAheadIdx].id()}]);
+        if (i + kAheadPos < valid) {
+          const uint32_t* ix = &input.indices[3 * size_t{refs[i + kAheadPos].id()}];
+          __builtin_prefetch(&input.positions[ix[0]]);
+          __builtin_prefetch(&input.positions[ix[1]]);
+          __builtin_prefetch(&input.positions[ix[2]]);
+        }
+        const uint32_t id = refs[i].id();
+        bvh.prim_ids_.push_back(id);
+        BvhTriangle t;
+        for (int k = 0; k < 3; ++k) {
+          const Vec3& p = input.positions[input.indices[3 * size_t{id} + static_cast<size_t>(k)]];
+          t.v[3 * k] = p.x;
+          t.v[3 * k + 1] = p.y;
+          t.v[3 * k + 2] = p.z;
+        }
+        bvh.tris_.push_back(t);
+        if (any_transparent) bvh.transmittance_[i] = input.transmittance[id];
+      }
     }
   });
 
@@ -513,13 +812,35 @@ Bvh Bvh::build(const TriangleInput& input, const BvhOptions& options, BuildInfo*
     // Triangle blocks of the leaves, in the order the collapse meets them (depth first).
     auto& tri4 = bvh.tri4_;
     tri4.reserve(bvh.tris_.size() / 2 + 1);
+    const BvhTriangle* tris = bvh.tris_.data();
     const auto make_blocks = [&](uint32_t first, uint32_t count) {
       const uint32_t index = static_cast<uint32_t>(tri4.size());
-      for (uint32_t b = 0; b < count; b += kBlock)
-        accel::fill_block(tri4.emplace_back(), bvh.tris_.data(), first + b, std::min(kBlock, count - b));
+      for (uint32_t b = 0; b < count; b += kBlock) {
+        // As accel::fill_block, into a local (emplace_back() would zero the block first): the
+        // 4 x 9 floats of the block's triangles transposed with SSE, NaN in unused lanes.
+        BvhTriangle4 blk;
+        const uint32_t used = std::min(kBlock, count - b);
+        const __m128 nan4 = _mm_set1_ps(std::numeric_limits<float>::quiet_NaN());
+        __m128 r0[4], r1[4];
+        alignas(16) float last[4];
+        for (uint32_t lane = 0; lane < 4; ++lane) {
+          const float* v = tris[first + b + std::min(lane, used - 1)].v;
+          const bool on = lane < used;
+          r0[lane] = on ? _mm_loadu_ps(v) : nan4;
+          r1[lane] = on ? _mm_loadu_ps(v + 4) : nan4;
+          last[lane] = on ? v[8] : std::numeric_limits<float>::quiet_NaN();
+          blk.index[lane] = on ? first + b + lane : kNoHit;
+        }
+        _MM_TRANSPOSE4_PS(r0[0], r0[1], r0[2], r0[3]);
+        _MM_TRANSPOSE4_PS(r1[0], r1[1], r1[2], r1[3]);
+        float* out = &blk.v[0][0][0];  // component j = 3 * vertex + axis at out + 4 * j
+        for (int j = 0; j < 4; ++j) _mm_store_ps(out + 4 * j, r0[j]), _mm_store_ps(out + 16 + 4 * j, r1[j]);
+        _mm_store_ps(out + 32, _mm_load_ps(last));
+        tri4.push_back(blk);
+      }
       return index;
     };
-    const std::function<uint32_t(uint32_t)> collapse = [&](uint32_t b) -> uint32_t {
+    const auto collapse = [&](const auto& self, uint32_t b) -> uint32_t {
       uint32_t list[4];
       int k = 0;
       if (bin[b].is_leaf()) {
@@ -539,9 +860,9 @@ Bvh Bvh::build(const TriangleInput& input, const BvhOptions& options, BuildInfo*
         list[k++] = l + 1;
       }
       const uint32_t index = static_cast<uint32_t>(wide.size());
-      wide.emplace_back();
+      wide.emplace_back();  // the slot; filled after the subtrees (pre-order numbering)
+      BvhWideNode w;
       for (int i = 0; i < 4; ++i) {
-        BvhWideNode& w = wide[index];
         if (i >= k) {
           for (int a = 0; a < 3; ++a) w.b[0][a][i] = kInf, w.b[1][a][i] = -kInf;
           w.child[i] = 0;
@@ -551,15 +872,12 @@ Bvh Bvh::build(const TriangleInput& input, const BvhOptions& options, BuildInfo*
         const BvhNode& c = bin[list[i]];
         for (int a = 0; a < 3; ++a) w.b[0][a][i] = c.min[a], w.b[1][a][i] = c.max[a];
         w.count[i] = c.count;
-        w.child[i] = c.is_leaf() ? make_blocks(c.left_first, c.count) : c.left_first;
-        if (!c.is_leaf()) {
-          const uint32_t sub = collapse(list[i]);
-          wide[index].child[i] = sub;  // (wide may have reallocated)
-        }
+        w.child[i] = c.is_leaf() ? make_blocks(c.left_first, c.count) : self(self, list[i]);
       }
+      wide[index] = w;
       return index;
     };
-    collapse(0);
+    collapse(collapse, 0);
   }
 
   // 5. Figures: node/leaf counts, depth and the SAH cost (root-area normalised), summed in
