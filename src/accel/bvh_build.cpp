@@ -143,6 +143,32 @@ struct Split {
   int bin_count = 0;
 };
 
+/// Binning parameters of one node, shared by the SSE2 and AVX2 split searches: bin count,
+/// centroid bounds, bin scale per axis. Small nodes need fewer bins (n + 1 candidate planes
+/// cannot beat n - 1 well-placed ones by much) and the sweeps dominate the build time there.
+/// Bin index vector -> packed index: axis a's bins at a * nb (a few cache lines instead of
+/// 3 x 256 bins spaced apart, whose equal low address bits made loads of one axis wait on
+/// stores of another: 4K aliasing). Lane 3 is never read.
+struct BinParams {
+  alignas(16) float cmin[4], cext[4], scale[4];
+  int nb;
+  __m128 vmin, vscale, vmaxbin;
+  __m128i voff;
+
+  BinParams(int bins, uint32_t count, const Box4& cbounds) {
+    _mm_store_ps(cmin, cbounds.lo);
+    _mm_store_ps(cext, _mm_sub_ps(cbounds.hi, cbounds.lo));
+    nb = std::min(bins, std::max(4, static_cast<int>(count)));
+    const float fbins = static_cast<float>(nb);
+    for (int a = 0; a < 3; ++a) scale[a] = cext[a] > 0.0f ? fbins / cext[a] : 0.0f;
+    scale[3] = 0.0f;
+    vmin = cbounds.lo;
+    vscale = _mm_load_ps(scale);
+    vmaxbin = _mm_set1_ps(fbins - 1.0f);
+    voff = _mm_setr_epi32(0, nb, 2 * nb, 0);
+  }
+};
+
 }  // namespace
 
 class BvhBuilder {
@@ -183,21 +209,11 @@ class BvhBuilder {
   /// Bins [first, first + count) on every axis with non-zero centroid extent and returns the
   /// cheapest split (axis -1 when all centroids coincide).
   __attribute__((noinline)) Split find_split(uint32_t first, uint32_t count, const Box4& cbounds) const {
-    alignas(16) float cmin[4], cext[4], scale[4];
-    _mm_store_ps(cmin, cbounds.lo);
-    _mm_store_ps(cext, _mm_sub_ps(cbounds.hi, cbounds.lo));
-    // Small nodes need fewer bins (n + 1 candidate planes cannot beat n - 1 well-placed ones
-    // by much) and the sweeps dominate the build time there.
-    const int nb = std::min(bins_, std::max(4, static_cast<int>(count)));
-    const float fbins = static_cast<float>(nb);
-    for (int a = 0; a < 3; ++a) scale[a] = cext[a] > 0.0f ? fbins / cext[a] : 0.0f;
-    scale[3] = 0.0f;
-    const __m128 vmin = cbounds.lo, vscale = _mm_load_ps(scale);
-    const __m128 vmaxbin = _mm_set1_ps(fbins - 1.0f);
-    // Bin index vector -> packed index: axis a's bins at a * nb (a few cache lines instead of
-    // 3 x 256 bins spaced apart, whose equal low address bits made loads of one axis wait on
-    // stores of another: 4K aliasing). Lane 3 is never read.
-    const __m128i voff = _mm_setr_epi32(0, nb, 2 * nb, 0);
+    const BinParams bp(bins_, count, cbounds);
+    const int nb = bp.nb;
+    const float *cmin = bp.cmin, *cext = bp.cext, *scale = bp.scale;
+    const __m128 vmin = bp.vmin, vscale = bp.vscale, vmaxbin = bp.vmaxbin;
+    const __m128i voff = bp.voff;
 
     // Large nodes bin into two sets (even / odd primitives), as Embree does: consecutive
     // primitives are spatially close and often land in the same bin, and one set would chain
@@ -289,16 +305,11 @@ class BvhBuilder {
   // exactly min(-a, -b)), and a primitive reference is a single 32-byte load.
   __attribute__((target("avx2"), noinline)) Split find_split_avx2(uint32_t first, uint32_t count,
                                                                    const Box4& cbounds) const {
-    alignas(16) float cmin[4], cext[4], scale[4];
-    _mm_store_ps(cmin, cbounds.lo);
-    _mm_store_ps(cext, _mm_sub_ps(cbounds.hi, cbounds.lo));
-    const int nb = std::min(bins_, std::max(4, static_cast<int>(count)));
-    const float fbins = static_cast<float>(nb);
-    for (int a = 0; a < 3; ++a) scale[a] = cext[a] > 0.0f ? fbins / cext[a] : 0.0f;
-    scale[3] = 0.0f;
-    const __m128 vmin = cbounds.lo, vscale = _mm_load_ps(scale);
-    const __m128 vmaxbin = _mm_set1_ps(fbins - 1.0f);
-    const __m128i voff = _mm_setr_epi32(0, nb, 2 * nb, 0);
+    const BinParams bp(bins_, count, cbounds);
+    const int nb = bp.nb;
+    const float *cmin = bp.cmin, *cext = bp.cext, *scale = bp.scale;
+    const __m128 vmin = bp.vmin, vscale = bp.vscale, vmaxbin = bp.vmaxbin;
+    const __m128i voff = bp.voff;
     const __m256 neg_hi = _mm256_setr_ps(0.0f, 0.0f, 0.0f, 0.0f, -0.0f, -0.0f, -0.0f, -0.0f);
     const __m256 empty = _mm256_set1_ps(kInf);
 
