@@ -4,6 +4,8 @@
 
 #include <cmath>
 #include <cstdint>
+#include <cstdio>
+#include <string>
 #include <random>
 #include <vector>
 
@@ -12,6 +14,37 @@
 #include "specula/ray.h"
 
 namespace specula::test {
+
+/// Every BVH kernel this CPU runs: the tests force each one in turn.
+inline std::vector<BvhKernel> test_kernels() {
+  std::vector<BvhKernel> k{BvhKernel::Sse4};
+  if (bvh_kernel_supported(BvhKernel::Avx2x8)) {
+    k.push_back(BvhKernel::Avx2x8);
+  } else {
+    static bool said = false;
+    if (!said) std::printf("note: this CPU lacks AVX2, the avx2x8 BVH kernel is not tested here\n");
+    said = true;
+  }
+  return k;
+}
+
+/// One triangle tracer to test: brute force, or the BVH with one kernel.
+struct TracerVariant {
+  std::string name;  ///< "brute", "bvh sse4", "bvh avx2x8"
+  AccelKind kind;
+  BvhOptions options;
+};
+
+/// Brute force and the BVH with every kernel this CPU runs.
+inline std::vector<TracerVariant> triangle_tracers() {
+  std::vector<TracerVariant> v{{"brute", AccelKind::Brute, {}}};
+  for (const BvhKernel k : test_kernels()) {
+    BvhOptions o;
+    o.kernel = k;
+    v.push_back({std::string("bvh ") + bvh_kernel_name(k), AccelKind::Bvh, o});
+  }
+  return v;
+}
 
 struct Mesh {
   std::vector<Vec3> positions;

@@ -53,9 +53,9 @@ Scene base_scene() {
   return s;
 }
 
-std::unique_ptr<Tracer> make_tracer(const Scene& s, AccelKind kind = AccelKind::Bvh) {
+std::unique_ptr<Tracer> make_tracer(const Scene& s, AccelKind kind = AccelKind::Bvh, const BvhOptions& bvh = {}) {
   const std::vector<Vec3> tr = shadow_transmittance(s);
-  return build_tracer(kind, TriangleInput{s.positions, s.indices, tr});
+  return build_tracer(kind, TriangleInput{s.positions, s.indices, tr}, bvh);
 }
 
 Camera look(Vec3 from, Vec3 to, float vfov = 40.0f) {
@@ -363,6 +363,21 @@ TEST(Render, BitIdenticalForAnyThreadCountAndTileSize) {
     double sum = 0;
     for (const Vec3& v : a.color) sum += v.x + v.y + v.z;
     EXPECT_GT(sum, 0.0) << name << " rendered black";
+  }
+}
+
+TEST(Render, BitIdenticalWhicheverBvhKernelTraced) {
+  if (!bvh_kernel_supported(BvhKernel::Avx2x8)) GTEST_SKIP() << "this CPU lacks AVX2: only the sse4 kernel runs here";
+  for (const char* name : {"glassbox", "cornell", "pool"}) {
+    const Scene s = make_builtin_scene(name);
+    BvhOptions four, eight;
+    four.kernel = BvhKernel::Sse4;
+    eight.kernel = BvhKernel::Avx2x8;
+    const Film a = render_scene(s, *make_tracer(s, AccelKind::Bvh, four), 2);
+    const Film b = render_scene(s, *make_tracer(s, AccelKind::Bvh, eight), 2);
+    ASSERT_EQ(a.color.size(), b.color.size());
+    EXPECT_EQ(std::memcmp(a.color.data(), b.color.data(), a.color.size() * sizeof(Vec3)), 0)
+        << name << ": sse4 vs avx2x8 kernel";
   }
 }
 

@@ -19,8 +19,8 @@ using test::Mesh;
 
 /// Traces \p rays through both accelerators and expects every one of them to hit.
 void expect_all_hit(const Mesh& mesh, const std::vector<Ray>& rays, const std::string& label) {
-  for (const AccelKind kind : {AccelKind::Bvh, AccelKind::Brute}) {
-    const auto t = build_tracer(kind, mesh.input());
+  for (const test::TracerVariant& variant : test::triangle_tracers()) {
+    const auto t = build_tracer(variant.kind, mesh.input(), variant.options);
     std::vector<Hit> hits(rays.size());
     std::vector<Vec3> tr(rays.size());
     t->intersect(rays, hits);
@@ -38,9 +38,9 @@ void expect_all_hit(const Mesh& mesh, const std::vector<Ray>& rays, const std::s
                                   std::to_string(rays[first].org.z) + ") dir (" + std::to_string(rays[first].dir.x) + ", " +
                                   std::to_string(rays[first].dir.y) + ", " + std::to_string(rays[first].dir.z) + ")"
                             : "";
-    EXPECT_EQ(misses, 0u) << label << " (" << t->name() << "): " << misses << " of " << rays.size()
+    EXPECT_EQ(misses, 0u) << label << " (" << variant.name << "): " << misses << " of " << rays.size()
                           << " rays slipped through; " << first_ray;
-    EXPECT_EQ(clear, 0u) << label << " (" << t->name() << "): shadow rays slipped through";
+    EXPECT_EQ(clear, 0u) << label << " (" << variant.name << "): shadow rays slipped through";
   }
 }
 
@@ -151,17 +151,17 @@ TEST(Watertight, TransparentSurfaceCountedOnceOnSharedEdgesAndVertices) {
         rays.push_back({{x + 0.5f, 2.0f, z}, 0.0f, {-0.25f, -1.0f, 0.0f}, kInf});
         rays.push_back({{x, 2.0f, z - 0.5f}, 0.0f, {0.0f, -1.0f, 0.25f}, kInf});
       }
-    for (const AccelKind kind : {AccelKind::Bvh, AccelKind::Brute}) {
-      const auto tracer = build_tracer(kind, grid.input(half));
+    for (const test::TracerVariant& variant : test::triangle_tracers()) {
+      const auto tracer = build_tracer(variant.kind, grid.input(half), variant.options);
       std::vector<Vec3> tr(rays.size());
       tracer->transmittance(rays, tr);
       for (size_t r = 0; r < rays.size(); ++r)
         ASSERT_EQ(tr[r], (Vec3{0.5f, 0.5f, 0.5f}))
-            << (kind == AccelKind::Bvh ? "bvh" : "brute") << (alternate ? " alternating" : "") << " ray " << r << " org ("
+            << variant.name << (alternate ? " alternating" : "") << " ray " << r << " org ("
             << rays[r].org.x << ", " << rays[r].org.y << ", " << rays[r].org.z << ") gave " << tr[r].x;
       // Opaque triangles stay closed: every one of these rays is blocked, and hits. (The axis-
       // parallel rays run inside BVH boxes' face planes: 0 * inf slabs must not cull them.)
-      const auto opaque = build_tracer(kind, grid.input());
+      const auto opaque = build_tracer(variant.kind, grid.input(), variant.options);
       opaque->transmittance(rays, tr);
       std::vector<Hit> hits(rays.size());
       opaque->intersect(rays, hits);

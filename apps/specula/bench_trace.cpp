@@ -181,9 +181,11 @@ int bench_trace(const BenchTraceOptions& options) {
     bvh = build_tracer(AccelKind::Bvh, input, bopt, &info);
     bn.push_back(info.build_ms);
   }
-  std::printf("specula BVH: %zu nodes, %zu leaves, depth %u, SAH cost %.2f, %.2f MB (%zu bytes), %d bins, max leaf %d\n",
+  std::printf("specula BVH: %zu nodes, %zu leaves, depth %u, SAH cost %.2f, %.2f MB (%zu bytes), %d bins, max leaf %d, "
+              "kernel %s\n",
               info.nodes, info.leaves, info.max_depth, info.sah_cost, static_cast<double>(info.bytes) / 1048576.0,
-              info.bytes, options.bvh.bins, options.bvh.max_leaf_size);
+              info.bytes, options.bvh.bins, options.bvh.max_leaf_size,
+              bvh_kernel_name(resolve_bvh_kernel(options.bvh.kernel)));
 
   const std::vector<RaySet> sets = make_ray_sets(scene, *bvh, options.width, options.height);
 

@@ -44,6 +44,12 @@ void add_bvh_options(CLI::App* app, BvhOptions& bvh) {
   app->add_option("--max-leaf", bvh.max_leaf_size, "largest BVH leaf (triangles)")
       ->check(CLI::Range(1, 255))
       ->capture_default_str();
+  app->add_option_function<std::string>(
+         "--bvh-kernel", [&bvh](const std::string& k) { bvh.kernel = parse_bvh_kernel(k); },
+         "BVH traversal kernel: auto (widest this CPU runs), sse4 (4-wide nodes, SSE) or avx2x8 (8-wide "
+         "nodes, AVX2); all give bit-identical results")
+      ->check(CLI::IsMember({"auto", "sse4", "avx2x8"}))
+      ->default_str("auto");
 }
 
 /// --accel, --max-reflect, --max-refract, --threads: what every Whitted rendering command takes.

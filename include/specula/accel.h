@@ -27,11 +27,29 @@ struct TriangleInput {
   std::span<const Vec3> transmittance;
 };
 
+/// The traversal layout and kernels of a BVH (Bvh::build collapses the binary SAH tree into
+/// it). Auto picks the widest the CPU runs (checked at run time, one binary for every x86-64).
+enum class BvhKernel {
+  Auto,
+  Sse4,    ///< 4-wide nodes, SSE slab test (x86-64 baseline)
+  Avx2x8,  ///< 8-wide nodes, AVX2 slab test
+};
+
+/// Parses "auto" / "sse4" / "avx2x8"; throws specula::Error listing the valid names otherwise.
+BvhKernel parse_bvh_kernel(const std::string& name);
+/// "auto", "sse4" or "avx2x8".
+const char* bvh_kernel_name(BvhKernel kernel);
+/// Whether this CPU runs \p kernel (Auto: always).
+bool bvh_kernel_supported(BvhKernel kernel);
+/// \p kernel with Auto replaced by the best kernel this CPU runs.
+BvhKernel resolve_bvh_kernel(BvhKernel kernel);
+
 struct BvhOptions {
   int bins = 12;              ///< SAH bins per axis (2..256)
   int max_leaf_size = 16;     ///< hard cap; below it leaves are made by SAH termination
   float traversal_cost = 1.0f;  ///< SAH cost of visiting a node, relative to one triangle test
   int threads = 0;            ///< 0 = all hardware threads
+  BvhKernel kernel = BvhKernel::Auto;  ///< traversal layout; an unsupported one throws at build
 };
 
 /// Figures every build reports.

@@ -52,16 +52,22 @@ struct alignas(16) BvhTriangle4 {
 static_assert(sizeof(BvhTriangle4) == 160, "triangle blocks are 2.5 cache lines");
 
 /// Traversal layout derived from the binary tree after the build (Wald et al. 2008, "Getting
-/// Rid of Packets": multi-branching BVH for single rays): every node holds up to four children
-/// (the binary tree with every other level collapsed), bounds stored as SIMD lanes so one SSE
-/// slab test covers all four. b[0] = min, b[1] = max, each [axis][child]. Empty slots have
-/// min = +inf, max = -inf, which the near/far-plane slab test always rejects.
-struct alignas(64) BvhWideNode {
-  float b[2][3][4];
-  uint32_t child[4];  ///< interior: index of a BvhWideNode; leaf: first block in triangle_blocks()
-  uint32_t count[4];  ///< triangles of a leaf child (in ceil(count / 4) blocks); 0 for an interior child
+/// Rid of Packets": multi-branching BVH for single rays): every node holds up to W children
+/// (the binary tree collapsed by opening the largest interior child until W are reached),
+/// bounds stored as SIMD lanes so one slab test (SSE for W = 4, AVX2 for W = 8) covers all of
+/// them. b[0] = min, b[1] = max, each [axis][child]. Empty slots have min = +inf, max = -inf,
+/// which the near/far-plane slab test always rejects.
+template <int W>
+struct alignas(64) BvhNodeW {
+  static constexpr int kWidth = W;
+  float b[2][3][W];
+  uint32_t child[W];  ///< interior: index of a node of the same width; leaf: first block in triangle_blocks()
+  uint32_t count[W];  ///< triangles of a leaf child (in ceil(count / 4) blocks); 0 for an interior child
 };
-static_assert(sizeof(BvhWideNode) == 128, "wide nodes are two cache lines");
+using BvhWideNode = BvhNodeW<4>;   ///< BvhKernel::Sse4
+using BvhWideNode8 = BvhNodeW<8>;  ///< BvhKernel::Avx2x8
+static_assert(sizeof(BvhWideNode) == 128, "4-wide nodes are two cache lines");
+static_assert(sizeof(BvhWideNode8) == 256, "8-wide nodes are four cache lines");
 
 namespace detail {
 /// Minimal allocator for cache-line aligned arrays (nodes, triangles).
@@ -101,8 +107,12 @@ class Bvh final : public Tracer {
   bool occluded(const Ray& ray) const;  ///< any triangle crossed in (tmin, tmax), transparent or not
 
   std::span<const BvhNode> nodes() const { return nodes_; }
-  /// The 4-wide traversal layout derived from nodes() (what the queries actually walk).
+  /// The kernel the queries use (never Auto): which of the wide layouts below is filled.
+  BvhKernel kernel() const { return kernel_; }
+  /// The 4-wide traversal layout derived from nodes() (BvhKernel::Sse4; empty otherwise).
   std::span<const BvhWideNode> wide_nodes() const { return wide_; }
+  /// The 8-wide traversal layout derived from nodes() (BvhKernel::Avx2x8; empty otherwise).
+  std::span<const BvhWideNode8> wide8_nodes() const { return wide8_; }
   std::span<const BvhTriangle> triangles() const { return tris_; }
   /// The leaves' triangles in blocks of four (what the leaf tests actually read).
   std::span<const BvhTriangle4> triangle_blocks() const { return tri4_; }
@@ -114,6 +124,8 @@ class Bvh final : public Tracer {
  private:
   std::vector<BvhNode, detail::AlignedAllocator<BvhNode>> nodes_;
   std::vector<BvhWideNode, detail::AlignedAllocator<BvhWideNode>> wide_;
+  std::vector<BvhWideNode8, detail::AlignedAllocator<BvhWideNode8>> wide8_;
+  BvhKernel kernel_ = BvhKernel::Sse4;
   std::vector<BvhTriangle, detail::AlignedAllocator<BvhTriangle>> tris_;
   std::vector<BvhTriangle4, detail::AlignedAllocator<BvhTriangle4>> tri4_;
   std::vector<uint32_t> prim_ids_;

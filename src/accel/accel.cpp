@@ -19,6 +19,36 @@ AccelKind parse_accel_kind(const std::string& name) {
   throw Error("unknown accelerator '" + name + "' (valid: bvh, brute)");
 }
 
+BvhKernel parse_bvh_kernel(const std::string& name) {
+  if (name == "auto") return BvhKernel::Auto;
+  if (name == "sse4") return BvhKernel::Sse4;
+  if (name == "avx2x8") return BvhKernel::Avx2x8;
+  throw Error("unknown BVH kernel '" + name + "' (valid: auto, sse4, avx2x8)");
+}
+
+const char* bvh_kernel_name(BvhKernel kernel) {
+  switch (kernel) {
+    case BvhKernel::Auto: return "auto";
+    case BvhKernel::Sse4: return "sse4";
+    case BvhKernel::Avx2x8: return "avx2x8";
+  }
+  return "?";
+}
+
+bool bvh_kernel_supported(BvhKernel kernel) {
+  switch (kernel) {
+    case BvhKernel::Auto:
+    case BvhKernel::Sse4: return true;
+    case BvhKernel::Avx2x8: return __builtin_cpu_supports("avx2");
+  }
+  return false;
+}
+
+BvhKernel resolve_bvh_kernel(BvhKernel kernel) {
+  if (kernel != BvhKernel::Auto) return kernel;
+  return bvh_kernel_supported(BvhKernel::Avx2x8) ? BvhKernel::Avx2x8 : BvhKernel::Sse4;
+}
+
 namespace accel {
 
 namespace {

@@ -26,6 +26,8 @@
 #include <algorithm>
 #include <atomic>
 #include <bit>
+#include <string>
+#include <type_traits>
 #include <cmath>
 #include <limits>
 #include <memory>
@@ -629,6 +631,8 @@ struct RootBounds {
 
 Bvh Bvh::build(const TriangleInput& input, const BvhOptions& options, BuildInfo* info) {
   const Timer timer;
+  if (!bvh_kernel_supported(options.kernel))
+    throw Error(std::string("BVH kernel '") + bvh_kernel_name(options.kernel) + "' needs a CPU feature this machine lacks");
   // Validation is fused into the reference pass below (indices in range there; a non-finite
   // vertex always makes its triangle degenerate, so only those are checked for finiteness).
   // Any problem found hands over to accel::validate_input, which throws naming the first one.
@@ -810,12 +814,12 @@ Bvh Bvh::build(const TriangleInput& input, const BvhOptions& options, BuildInfo*
     }
   });
 
-  // 4. The 4-wide traversal layout: collapse every other level of the binary tree, opening
-  //    the largest interior child first (as Embree's and Wald's BVH4 builders do).
+  // 4. The wide traversal layout of the kernel: collapse the binary tree, opening the largest
+  //    interior child first until a node has W children (as Embree's and Wald's wide BVH
+  //    builders do).
+  bvh.kernel_ = resolve_bvh_kernel(options.kernel);
   if (!bvh.tris_.empty()) {
     const auto& bin = bvh.nodes_;
-    auto& wide = bvh.wide_;
-    wide.reserve(bin.size() / 2 + 1);
     const auto half_area_of = [&bin](uint32_t i) {
       const Vec3 e = bin[i].max - bin[i].min;
       return e.x * e.y + e.y * e.z + e.z * e.x;
@@ -851,44 +855,54 @@ Bvh Bvh::build(const TriangleInput& input, const BvhOptions& options, BuildInfo*
       }
       return index;
     };
-    const auto collapse = [&](const auto& self, uint32_t b) -> uint32_t {
-      uint32_t list[4];
-      int k = 0;
-      if (bin[b].is_leaf()) {
-        list[k++] = b;
-      } else {
-        list[k++] = bin[b].left_first;
-        list[k++] = bin[b].left_first + 1;
-      }
-      while (k < 4) {
-        int open = -1;
-        float best = -1.0f;
-        for (int i = 0; i < k; ++i)
-          if (!bin[list[i]].is_leaf() && half_area_of(list[i]) > best) best = half_area_of(list[i]), open = i;
-        if (open < 0) break;
-        const uint32_t l = bin[list[open]].left_first;
-        list[open] = l;
-        list[k++] = l + 1;
-      }
-      const uint32_t index = static_cast<uint32_t>(wide.size());
-      wide.emplace_back();  // the slot; filled after the subtrees (pre-order numbering)
-      BvhWideNode w;
-      for (int i = 0; i < 4; ++i) {
-        if (i >= k) {
-          for (int a = 0; a < 3; ++a) w.b[0][a][i] = kInf, w.b[1][a][i] = -kInf;
-          w.child[i] = 0;
-          w.count[i] = 0;
-          continue;
+    const auto collapse_into = [&](auto& wide) {
+      using Node = typename std::remove_reference_t<decltype(wide)>::value_type;
+      constexpr int W = Node::kWidth;
+      wide.reserve(bin.size() / (W - 1) + 1);
+      const auto collapse = [&](const auto& self, uint32_t b) -> uint32_t {
+        uint32_t list[W];
+        int k = 0;
+        if (bin[b].is_leaf()) {
+          list[k++] = b;
+        } else {
+          list[k++] = bin[b].left_first;
+          list[k++] = bin[b].left_first + 1;
         }
-        const BvhNode& c = bin[list[i]];
-        for (int a = 0; a < 3; ++a) w.b[0][a][i] = c.min[a], w.b[1][a][i] = c.max[a];
-        w.count[i] = c.count;
-        w.child[i] = c.is_leaf() ? make_blocks(c.left_first, c.count) : self(self, list[i]);
-      }
-      wide[index] = w;
-      return index;
+        while (k < W) {
+          int open = -1;
+          float best = -1.0f;
+          for (int i = 0; i < k; ++i)
+            if (!bin[list[i]].is_leaf() && half_area_of(list[i]) > best) best = half_area_of(list[i]), open = i;
+          if (open < 0) break;
+          const uint32_t l = bin[list[open]].left_first;
+          list[open] = l;
+          list[k++] = l + 1;
+        }
+        const uint32_t index = static_cast<uint32_t>(wide.size());
+        wide.emplace_back();  // the slot; filled after the subtrees (pre-order numbering)
+        Node w;
+        for (int i = 0; i < W; ++i) {
+          if (i >= k) {
+            for (int a = 0; a < 3; ++a) w.b[0][a][i] = kInf, w.b[1][a][i] = -kInf;
+            w.child[i] = 0;
+            w.count[i] = 0;
+            continue;
+          }
+          const BvhNode& c = bin[list[i]];
+          for (int a = 0; a < 3; ++a) w.b[0][a][i] = c.min[a], w.b[1][a][i] = c.max[a];
+          w.count[i] = c.count;
+          w.child[i] = c.is_leaf() ? make_blocks(c.left_first, c.count) : self(self, list[i]);
+        }
+        wide[index] = w;
+        return index;
+      };
+      collapse(collapse, 0);
     };
-    collapse(collapse, 0);
+    if (bvh.kernel_ == BvhKernel::Avx2x8) {
+      collapse_into(bvh.wide8_);
+    } else {
+      collapse_into(bvh.wide_);
+    }
   }
 
   // 5. Figures: node/leaf counts, depth and the SAH cost (root-area normalised), summed in
@@ -941,7 +955,8 @@ Aabb Bvh::bounds() const {
 }
 
 size_t Bvh::memory_bytes() const {
-  return nodes_.size() * sizeof(BvhNode) + wide_.size() * sizeof(BvhWideNode) + tris_.size() * sizeof(BvhTriangle) +
+  return nodes_.size() * sizeof(BvhNode) + wide_.size() * sizeof(BvhWideNode) + wide8_.size() * sizeof(BvhWideNode8) +
+         tris_.size() * sizeof(BvhTriangle) +
          tri4_.size() * sizeof(BvhTriangle4) +
          prim_ids_.size() * sizeof(uint32_t) + transmittance_.size() * sizeof(Vec3);
 }
