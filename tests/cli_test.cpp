@@ -9,6 +9,8 @@
 #include <sstream>
 #include <string>
 
+#include <nlohmann/json.hpp>
+
 #include "test_util.h"
 #include "cli_test_util.h"
 
@@ -123,6 +125,33 @@ TEST_F(Cli, InfoDescribesAMesh) {
   ASSERT_EQ(r.exit_code, 0) << r.err;
   EXPECT_NE(r.out.find("triangles  2"), std::string::npos) << r.out;
   EXPECT_NE(r.out.find("bounds     [-1 -1 0] - [1 1 0]"), std::string::npos) << r.out;
+}
+
+TEST_F(Cli, BenchTraceJsonHasEveryRayKindAndTheKernel) {
+  const RunResult r = run_cli("bench trace --scene cornell --width 24 --height 16 --repeat 1 --bvh-kernel sse4 --json", dir_);
+  ASSERT_EQ(r.exit_code, 0) << r.err;
+  nlohmann::json j;
+  ASSERT_NO_THROW(j = nlohmann::json::parse(r.out)) << r.out;
+  EXPECT_EQ(j["triangles"].get<int>() > 0, true);
+  EXPECT_EQ(j["bvh"]["kernel"], "sse4");
+  EXPECT_GT(j["bvh"]["sah_cost"].get<double>(), 0.0);
+  std::vector<std::string> kinds;
+  for (const auto& k : j["results"]) {
+    kinds.push_back(k["kind"].get<std::string>());
+    EXPECT_GT(k["count"].get<int>(), 0) << k.dump();
+    EXPECT_GT(k["specula_1t"].get<double>(), 0.0) << k.dump();
+    EXPECT_GT(k["specula_nt"].get<double>(), 0.0) << k.dump();
+    if (j["embree"].get<bool>()) {
+      EXPECT_GT(k["ratio_1t"].get<double>(), 0.0) << k.dump();
+    }
+  }
+  EXPECT_EQ(kinds, (std::vector<std::string>{"build", "primary", "shadow", "reflection", "refraction", "diffuse", "random"}));
+  // The table names the same kinds.
+  const RunResult t = run_cli("bench trace --scene cornell --width 24 --height 16 --repeat 1 --no-embree", dir_);
+  ASSERT_EQ(t.exit_code, 0) << t.err;
+  for (const char* k : {"primary", "shadow", "reflection", "refraction", "diffuse", "random"})
+    EXPECT_NE(t.out.find(std::string("\n") + k + " "), std::string::npos) << k << "\n" << t.out;
+  EXPECT_NE(run_cli("bench trace --scene cornell --bvh-kernel avx9", dir_).exit_code, 0);
 }
 
 TEST_F(Cli, BenchRenderPrintsFrameRatesAndSeedFigures) {

@@ -1,6 +1,7 @@
 // `specula bench trace` (owner: accel): BVH build time and tracing throughput for the ray kinds
-// a Whitted renderer shoots (primary, shadow, secondary = reflection + refraction, diffuse
-// bounce), one thread and all threads, and Embree on the very same rays when compiled in.
+// a Whitted renderer shoots (primary, shadow, reflection, refraction, diffuse bounce) and
+// incoherent random rays, one thread and all threads, and Embree on the very same rays when
+// compiled in; a table, or JSON with --json.
 #include <algorithm>
 #include <cmath>
 #include <cstdio>
@@ -13,6 +14,8 @@
 #include <tbb/info.h>
 #include <tbb/parallel_for.h>
 #include <tbb/task_arena.h>
+
+#include <nlohmann/json.hpp>
 
 #include "commands.h"
 #include "core/hash.h"
@@ -51,7 +54,8 @@ std::vector<RaySet> make_ray_sets(const Scene& scene, const Tracer& tracer, int 
   std::vector<Hit> hits(primary.rays.size());
   tracer.intersect(primary.rays, hits);
 
-  RaySet shadow{"shadow", true, {}}, secondary{"secondary", false, {}}, diffuse{"diffuse", false, {}};
+  RaySet shadow{"shadow", true, {}}, reflection{"reflection", false, {}}, refraction{"refraction", false, {}},
+      diffuse{"diffuse", false, {}};
   const Light* light = scene.lights.empty() ? nullptr : &scene.lights.front();
   for (size_t i = 0; i < hits.size(); ++i) {
     const Hit& h = hits[i];
@@ -78,13 +82,13 @@ std::vector<RaySet> make_ray_sets(const Scene& scene, const Tracer& tracer, int 
     Ray refl;
     refl.org = above;
     refl.dir = normalize(reflect(pr.dir, n));
-    secondary.rays.push_back(refl);
+    reflection.rays.push_back(refl);
     Vec3 t;
     if (refract(pr.dir, n, front ? 1.0f / 1.5f : 1.5f, t)) {
       Ray refr;
       refr.org = below;
       refr.dir = normalize(t);
-      secondary.rays.push_back(refr);
+      refraction.rays.push_back(refr);
     }
     // Cosine-weighted hemisphere around n (Malley's method), seeded by the pixel index.
     const uint32_t seed = hash_u32(static_cast<uint32_t>(i));
@@ -97,11 +101,35 @@ std::vector<RaySet> make_ray_sets(const Scene& scene, const Tracer& tracer, int 
     d.dir = normalize(tx * (r * std::cos(phi)) + ty * (r * std::sin(phi)) + n * std::sqrt(std::max(0.0f, 1.0f - u1)));
     diffuse.rays.push_back(d);
   }
+  // Random rays, as many as the diffuse ones: from a uniform point on the scene's bounding
+  // sphere towards another one (incoherent, every length, most of them crossing the scene).
+  RaySet random{"random", false, {}};
+  const Aabb box = scene.bounds();
+  const Vec3 centre = box.center();
+  const float radius = 0.5f * length(box.max - box.min);
+  const auto on_sphere = [&](uint32_t h1) {
+    const float z = 1.0f - 2.0f * to_unit_float(h1), a = 2.0f * kPi * to_unit_float(hash_u32(h1 ^ 0x85EBCA6Bu));
+    const float rr = std::sqrt(std::max(0.0f, 1.0f - z * z));
+    return centre + Vec3{rr * std::cos(a), rr * std::sin(a), z} * radius;
+  };
+  const size_t random_count = std::max<size_t>(diffuse.rays.size(), 1024);
+  for (size_t i = 0; i < random_count && radius > 0.0f; ++i) {
+    const uint32_t h1 = hash_u32(static_cast<uint32_t>(i) ^ 0x27D4EB2Fu), h2 = hash_u32(h1 ^ 0x165667B1u);
+    const Vec3 a = on_sphere(h1), b = on_sphere(h2);
+    const Vec3 dir = b - a;
+    if (!(length(dir) > 0.0f)) continue;
+    Ray ray;
+    ray.org = a;
+    ray.dir = normalize(dir);
+    random.rays.push_back(ray);
+  }
   std::vector<RaySet> sets;
   sets.push_back(std::move(primary));
   if (light) sets.push_back(std::move(shadow));
-  sets.push_back(std::move(secondary));
+  sets.push_back(std::move(reflection));
+  sets.push_back(std::move(refraction));
   sets.push_back(std::move(diffuse));
+  sets.push_back(std::move(random));
   return sets;
 }
 
@@ -164,9 +192,11 @@ int bench_trace(const BenchTraceOptions& options) {
   const int repeat = std::max(1, options.repeat);
   const TriangleInput input{scene.positions, scene.indices, {}};
 
-  std::printf("bench trace: %s, %zu triangles, %dx%d rays from camera '%s', %d threads, median of %d\n",
-              spec.c_str(), scene.triangle_count(), options.width, options.height,
-              scene.cameras.front().name.c_str(), threads, repeat);
+  const bool json = options.json;
+  if (!json)
+    std::printf("bench trace: %s, %zu triangles, %dx%d rays from camera '%s', %d threads, median of %d\n",
+                spec.c_str(), scene.triangle_count(), options.width, options.height,
+                scene.cameras.front().name.c_str(), threads, repeat);
 
   // Build: one thread, then all threads.
   BvhOptions bopt = options.bvh;
@@ -181,11 +211,12 @@ int bench_trace(const BenchTraceOptions& options) {
     bvh = build_tracer(AccelKind::Bvh, input, bopt, &info);
     bn.push_back(info.build_ms);
   }
-  std::printf("specula BVH: %zu nodes, %zu leaves, depth %u, SAH cost %.2f, %.2f MB (%zu bytes), %d bins, max leaf %d, "
-              "kernel %s\n",
-              info.nodes, info.leaves, info.max_depth, info.sah_cost, static_cast<double>(info.bytes) / 1048576.0,
-              info.bytes, options.bvh.bins, options.bvh.max_leaf_size,
-              bvh_kernel_name(resolve_bvh_kernel(options.bvh.kernel)));
+  const char* kernel = bvh_kernel_name(resolve_bvh_kernel(options.bvh.kernel));
+  if (!json)
+    std::printf("specula BVH: %zu nodes, %zu leaves, depth %u, SAH cost %.2f, %.2f MB (%zu bytes), %d bins, max leaf "
+                "%d, kernel %s\n",
+                info.nodes, info.leaves, info.max_depth, info.sah_cost, static_cast<double>(info.bytes) / 1048576.0,
+                info.bytes, options.bvh.bins, options.bvh.max_leaf_size, kernel);
 
   const std::vector<RaySet> sets = make_ray_sets(scene, *bvh, options.width, options.height);
 
@@ -205,31 +236,23 @@ int bench_trace(const BenchTraceOptions& options) {
   }
 #endif
 
-  // One table: build ms, then Mrays/s per ray kind.
-  std::printf("\n%-10s %9s %8s | %12s %12s", "", "rays", "unit", "specula 1T", ("specula " + std::to_string(threads) + "T").c_str());
-  if (with_embree)
-    std::printf(" | %12s %12s | %9s %9s", "embree 1T", ("embree " + std::to_string(threads) + "T").c_str(), "ours/e 1T",
-                ("ours/e " + std::to_string(threads) + "T").c_str());
-  std::printf("\n");
-  const auto row = [&](const std::string& name, size_t count, const char* unit, double s1, double sn, double em1,
-                       double emn, bool lower_is_better) {
-    std::printf("%-10s %9zu %8s | %12s %12s", name.c_str(), count, unit, fmt("%.2f", s1).c_str(), fmt("%.2f", sn).c_str());
-    if (with_embree) {
-      const auto ratio = [&](double a, double b) {
-        if (a <= 0.0 || b <= 0.0) return std::string("-");
-        return fmt("%.2fx", lower_is_better ? b / a : a / b);
-      };
-      std::printf(" | %12s %12s | %9s %9s", fmt("%.2f", em1).c_str(), fmt("%.2f", emn).c_str(), ratio(s1, em1).c_str(),
-                  ratio(sn, emn).c_str());
-    }
-    std::printf("\n");
+  // Measure everything first, then print one table (or JSON): build ms, then Mrays/s per kind.
+  struct Row {
+    std::string name;
+    size_t count;
+    const char* unit;
+    double s1, sn, e1, en;
+    bool lower_is_better;
   };
+  std::vector<Row> rows;
   double em1 = 0, emn = 0;
 #ifdef SPECULA_HAVE_EMBREE
-  em1 = median(e1);
-  emn = median(en);
+  if (with_embree) {
+    em1 = median(e1);
+    emn = median(en);
+  }
 #endif
-  row("build", scene.triangle_count(), "ms", median(b1), median(bn), em1, emn, true);
+  rows.push_back({"build", scene.triangle_count(), "ms", median(b1), median(bn), em1, emn, true});
   for (const RaySet& set : sets) {
     const double s1 = trace_mrays(*bvh, set, 1, repeat);
     const double sn = trace_mrays(*bvh, set, threads, repeat);
@@ -240,7 +263,64 @@ int bench_trace(const BenchTraceOptions& options) {
       xn = trace_mrays(*embreen, set, threads, repeat);
     }
 #endif
-    row(set.name, set.rays.size(), "Mrays/s", s1, sn, x1, xn, false);
+    rows.push_back({set.name, set.rays.size(), "Mrays/s", s1, sn, x1, xn, false});
+  }
+  const auto ratio = [](const Row& r, double ours, double theirs) {
+    if (ours <= 0.0 || theirs <= 0.0) return 0.0;
+    return r.lower_is_better ? theirs / ours : ours / theirs;
+  };
+
+  if (json) {
+    nlohmann::ordered_json j;
+    j["scene"] = spec;
+    j["triangles"] = scene.triangle_count();
+    j["width"] = options.width;
+    j["height"] = options.height;
+    j["camera"] = scene.cameras.front().name;
+    j["threads"] = threads;
+    j["repeat"] = repeat;
+    j["bvh"] = {{"kernel", kernel},          {"nodes", info.nodes},   {"leaves", info.leaves},
+                {"depth", info.max_depth},   {"sah_cost", info.sah_cost}, {"bytes", info.bytes},
+                {"bins", options.bvh.bins}, {"max_leaf", options.bvh.max_leaf_size}};
+    j["embree"] = with_embree;
+    nlohmann::ordered_json kinds = nlohmann::ordered_json::array();
+    for (const Row& r : rows) {
+      nlohmann::ordered_json k;
+      k["kind"] = r.name;
+      k["count"] = r.count;
+      k["unit"] = r.unit;
+      k["specula_1t"] = r.s1;
+      k["specula_nt"] = r.sn;
+      if (with_embree) {
+        k["embree_1t"] = r.e1;
+        k["embree_nt"] = r.en;
+        k["ratio_1t"] = ratio(r, r.s1, r.e1);
+        k["ratio_nt"] = ratio(r, r.sn, r.en);
+      }
+      kinds.push_back(k);
+    }
+    j["results"] = kinds;
+    std::printf("%s\n", j.dump(2).c_str());
+    return 0;
+  }
+
+  std::printf("\n%-10s %9s %8s | %12s %12s", "", "rays", "unit", "specula 1T", ("specula " + std::to_string(threads) + "T").c_str());
+  if (with_embree)
+    std::printf(" | %12s %12s | %9s %9s", "embree 1T", ("embree " + std::to_string(threads) + "T").c_str(), "ours/e 1T",
+                ("ours/e " + std::to_string(threads) + "T").c_str());
+  std::printf("\n");
+  for (const Row& r : rows) {
+    std::printf("%-10s %9zu %8s | %12s %12s", r.name.c_str(), r.count, r.unit, fmt("%.2f", r.s1).c_str(),
+                fmt("%.2f", r.sn).c_str());
+    if (with_embree) {
+      const auto rt = [&](double ours, double theirs) {
+        const double x = ratio(r, ours, theirs);
+        return x > 0.0 ? fmt("%.2fx", x) : std::string("-");
+      };
+      std::printf(" | %12s %12s | %9s %9s", fmt("%.2f", r.e1).c_str(), fmt("%.2f", r.en).c_str(), rt(r.s1, r.e1).c_str(),
+                  rt(r.sn, r.en).c_str());
+    }
+    std::printf("\n");
   }
   if (with_embree) std::printf("(ratio > 1: specula faster; build ratio = embree ms / specula ms)\n");
 #ifndef SPECULA_HAVE_EMBREE

@@ -27,6 +27,7 @@ struct BenchTraceOptions {
   BvhOptions bvh;
   LoadOptions load;
   bool embree = true;          ///< compare against Embree when compiled in
+  bool json = false;           ///< --json: print the results as JSON instead of a table
 };
 
 struct RenderOptions {

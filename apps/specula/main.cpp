@@ -154,8 +154,8 @@ int main(int argc, char** argv) {
   cli::BenchTraceOptions bench;
   CLI::App* bench_trace_cmd = bench_cmd->add_subcommand(
       "trace",
-      "BVH build ms and Mrays/s for primary, shadow, reflection, refraction and diffuse rays, one "
-      "thread and all threads; the same rays through Embree side by side when it is compiled in");
+      "BVH build ms and Mrays/s for primary, shadow, reflection, refraction, diffuse bounce and random "
+      "rays, one thread and all threads; the same rays through Embree side by side when it is compiled in");
   bench_trace_cmd->add_option("--scene", bench.scene, kSceneHelp)->capture_default_str();
   bench_trace_cmd->add_option("--mesh", bench.mesh, "bench a bare mesh instead of --scene");
   bench_trace_cmd->add_option("--width", bench.width, "ray grid width")
@@ -171,6 +171,9 @@ int main(int argc, char** argv) {
       ->check(CLI::Range(1, 1000))
       ->capture_default_str();
   bench_trace_cmd->add_flag("!--no-embree", bench.embree, "do not run the Embree comparison");
+  bench_trace_cmd->add_flag("--json", bench.json,
+                            "print the results as one JSON object (scene, BVH figures, per ray kind: Mrays/s "
+                            "of specula and Embree on 1 and all threads, ratios) instead of the table");
   add_data_option(bench_trace_cmd, bench.load);
   add_bvh_options(bench_trace_cmd, bench.bvh);
 
