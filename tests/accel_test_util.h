@@ -18,19 +18,22 @@ namespace specula::test {
 /// Every BVH kernel this CPU runs: the tests force each one in turn.
 inline std::vector<BvhKernel> test_kernels() {
   std::vector<BvhKernel> k{BvhKernel::Sse4};
-  if (bvh_kernel_supported(BvhKernel::Avx2x8)) {
-    k.push_back(BvhKernel::Avx2x8);
-  } else {
-    static bool said = false;
-    if (!said) std::printf("note: this CPU lacks AVX2, the avx2x8 BVH kernel is not tested here\n");
-    said = true;
+  for (const BvhKernel wide : {BvhKernel::Avx2x8, BvhKernel::Avx512x8}) {
+    if (bvh_kernel_supported(wide)) {
+      k.push_back(wide);
+    } else {
+      static bool said[2] = {false, false};
+      bool& s = said[wide == BvhKernel::Avx2x8 ? 0 : 1];
+      if (!s) std::printf("note: this CPU cannot run the %s BVH kernel; it is not tested here\n", bvh_kernel_name(wide));
+      s = true;
+    }
   }
   return k;
 }
 
 /// One triangle tracer to test: brute force, or the BVH with one kernel.
 struct TracerVariant {
-  std::string name;  ///< "brute", "bvh sse4", "bvh avx2x8"
+  std::string name;  ///< "brute", "bvh sse4", "bvh avx2x8", ...
   AccelKind kind;
   BvhOptions options;
 };

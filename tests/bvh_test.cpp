@@ -429,7 +429,7 @@ void check_invariants(const Bvh& bvh, const TriangleInput& input, const BvhOptio
   // The wide layout of the BVH's kernel is filled, the other one is empty.
   EXPECT_NE(bvh.kernel(), BvhKernel::Auto);
   EXPECT_EQ(bvh.kernel(), resolve_bvh_kernel(o.kernel));
-  if (bvh.kernel() == BvhKernel::Avx2x8) {
+  if (bvh_kernel_is_8_wide(bvh.kernel())) {
     EXPECT_TRUE(bvh.wide_nodes().empty());
     check_wide_layout(bvh, bvh.wide8_nodes(), n);
   } else {
@@ -473,7 +473,7 @@ TEST(BvhBasics, KernelNamesAndSupport) {
   EXPECT_EQ(parse_bvh_kernel("auto"), BvhKernel::Auto);
   EXPECT_EQ(parse_bvh_kernel("sse4"), BvhKernel::Sse4);
   EXPECT_EQ(parse_bvh_kernel("avx2x8"), BvhKernel::Avx2x8);
-  for (const BvhKernel k : {BvhKernel::Auto, BvhKernel::Sse4, BvhKernel::Avx2x8})
+  for (const BvhKernel k : {BvhKernel::Auto, BvhKernel::Sse4, BvhKernel::Avx2x8, BvhKernel::Avx512x8})
     EXPECT_EQ(parse_bvh_kernel(bvh_kernel_name(k)), k);
   try {
     parse_bvh_kernel("avx512");
@@ -486,7 +486,13 @@ TEST(BvhBasics, KernelNamesAndSupport) {
   EXPECT_EQ(resolve_bvh_kernel(BvhKernel::Sse4), BvhKernel::Sse4);
   // Auto takes the widest kernel the CPU runs.
   EXPECT_EQ(resolve_bvh_kernel(BvhKernel::Auto),
-            bvh_kernel_supported(BvhKernel::Avx2x8) ? BvhKernel::Avx2x8 : BvhKernel::Sse4);
+            bvh_kernel_supported(BvhKernel::Avx512x8) ? BvhKernel::Avx512x8
+            : bvh_kernel_supported(BvhKernel::Avx2x8) ? BvhKernel::Avx2x8
+                                                      : BvhKernel::Sse4);
+  // A kernel needing more than AVX2 is never supported where AVX2 is missing.
+  if (!bvh_kernel_supported(BvhKernel::Avx2x8)) {
+    EXPECT_FALSE(bvh_kernel_supported(BvhKernel::Avx512x8));
+  }
 }
 
 TEST(BvhStructure, InvariantsAndQualityOnBunny) {

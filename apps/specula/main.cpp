@@ -46,9 +46,9 @@ void add_bvh_options(CLI::App* app, BvhOptions& bvh) {
       ->capture_default_str();
   app->add_option_function<std::string>(
          "--bvh-kernel", [&bvh](const std::string& k) { bvh.kernel = parse_bvh_kernel(k); },
-         "BVH traversal kernel: auto (widest this CPU runs), sse4 (4-wide nodes, SSE) or avx2x8 (8-wide "
-         "nodes, AVX2); all give bit-identical results")
-      ->check(CLI::IsMember({"auto", "sse4", "avx2x8"}))
+         "BVH traversal kernel: auto (the best this CPU runs), sse4 (4-wide nodes, SSE), avx2x8 (8-wide "
+         "nodes, AVX2) or avx512x8 (8-wide nodes, AVX-512VL registers); all give bit-identical results")
+      ->check(CLI::IsMember({"auto", "sse4", "avx2x8", "avx512x8"}))
       ->default_str("auto");
 }
 

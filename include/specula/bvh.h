@@ -65,7 +65,7 @@ struct alignas(64) BvhNodeW {
   uint32_t count[W];  ///< triangles of a leaf child (in ceil(count / 4) blocks); 0 for an interior child
 };
 using BvhWideNode = BvhNodeW<4>;   ///< BvhKernel::Sse4
-using BvhWideNode8 = BvhNodeW<8>;  ///< BvhKernel::Avx2x8
+using BvhWideNode8 = BvhNodeW<8>;  ///< BvhKernel::Avx2x8 and Avx512x8
 static_assert(sizeof(BvhWideNode) == 128, "4-wide nodes are two cache lines");
 static_assert(sizeof(BvhWideNode8) == 256, "8-wide nodes are four cache lines");
 
@@ -111,7 +111,7 @@ class Bvh final : public Tracer {
   BvhKernel kernel() const { return kernel_; }
   /// The 4-wide traversal layout derived from nodes() (BvhKernel::Sse4; empty otherwise).
   std::span<const BvhWideNode> wide_nodes() const { return wide_; }
-  /// The 8-wide traversal layout derived from nodes() (BvhKernel::Avx2x8; empty otherwise).
+  /// The 8-wide traversal layout derived from nodes() (8-wide kernels; empty otherwise).
   std::span<const BvhWideNode8> wide8_nodes() const { return wide8_; }
   std::span<const BvhTriangle> triangles() const { return tris_; }
   /// The leaves' triangles in blocks of four (what the leaf tests actually read).

@@ -23,7 +23,8 @@ BvhKernel parse_bvh_kernel(const std::string& name) {
   if (name == "auto") return BvhKernel::Auto;
   if (name == "sse4") return BvhKernel::Sse4;
   if (name == "avx2x8") return BvhKernel::Avx2x8;
-  throw Error("unknown BVH kernel '" + name + "' (valid: auto, sse4, avx2x8)");
+  if (name == "avx512x8") return BvhKernel::Avx512x8;
+  throw Error("unknown BVH kernel '" + name + "' (valid: auto, sse4, avx2x8, avx512x8)");
 }
 
 const char* bvh_kernel_name(BvhKernel kernel) {
@@ -31,6 +32,7 @@ const char* bvh_kernel_name(BvhKernel kernel) {
     case BvhKernel::Auto: return "auto";
     case BvhKernel::Sse4: return "sse4";
     case BvhKernel::Avx2x8: return "avx2x8";
+    case BvhKernel::Avx512x8: return "avx512x8";
   }
   return "?";
 }
@@ -40,12 +42,15 @@ bool bvh_kernel_supported(BvhKernel kernel) {
     case BvhKernel::Auto:
     case BvhKernel::Sse4: return true;
     case BvhKernel::Avx2x8: return __builtin_cpu_supports("avx2");
+    case BvhKernel::Avx512x8:
+      return __builtin_cpu_supports("avx2") && __builtin_cpu_supports("avx512f") && __builtin_cpu_supports("avx512vl");
   }
   return false;
 }
 
 BvhKernel resolve_bvh_kernel(BvhKernel kernel) {
   if (kernel != BvhKernel::Auto) return kernel;
+  if (bvh_kernel_supported(BvhKernel::Avx512x8)) return BvhKernel::Avx512x8;
   return bvh_kernel_supported(BvhKernel::Avx2x8) ? BvhKernel::Avx2x8 : BvhKernel::Sse4;
 }
 

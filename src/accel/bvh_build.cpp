@@ -898,7 +898,7 @@ Bvh Bvh::build(const TriangleInput& input, const BvhOptions& options, BuildInfo*
       };
       collapse(collapse, 0);
     };
-    if (bvh.kernel_ == BvhKernel::Avx2x8) {
+    if (bvh_kernel_is_8_wide(bvh.kernel_)) {
       collapse_into(bvh.wide8_);
     } else {
       collapse_into(bvh.wide_);

@@ -2,13 +2,14 @@
 //
 // Stack-based traversal (seed 004; seed 002, section 3.3.4) of the wide layout derived from the
 // binary tree (BvhNodeW): one slab test covers all children of a node, 4 with SSE
-// (BvhKernel::Sse4, the x86-64 baseline) or 8 with AVX2 (BvhKernel::Avx2x8); hit children are
+// (BvhKernel::Sse4, the x86-64 baseline) or 8 with AVX2 (BvhKernel::Avx2x8, and Avx512x8: the
+// same code with AVX-512VL's 32 registers); hit children are
 // visited nearest first, the others pushed with their entry distance, and popped subtrees
 // farther than the current closest hit are skipped. Wider nodes mean fewer dependent node
 // fetches and unpredictable branches per ray (measured on bunny bounce rays: binary 25, 4-wide
-// 14 node visits). The kernels are one source (bvh_kernel.inc) compiled twice, the 8-wide one
-// with the AVX2 target attribute, chosen per BVH at build time (CPUID), so one binary runs on
-// every x86-64 and uses AVX2 where the CPU has it.
+// 14, 8-wide 9 node visits). The kernels are one source (bvh_kernel.inc) compiled once per
+// kernel with its target attribute, chosen per BVH at build time (CPUID), so one binary runs on
+// every x86-64 and uses AVX2 / AVX-512 where the CPU has them.
 //
 // Ray/box: slab test with a precomputed reciprocal direction; near and far planes are chosen
 // once per ray from the direction signs. A zero direction component has an infinite reciprocal;
@@ -131,10 +132,20 @@ struct BvhView {
 #undef SPECULA_KERNEL_WIDTH
 #undef SPECULA_KERNEL_TARGET
 
+// The 8-wide kernel again for AVX-512VL: the same 256-bit operations, but 32 vector registers,
+// so the per-ray constants of the slab and triangle tests are never spilled to the stack.
+#define SPECULA_KERNEL_NS avx512x8
+#define SPECULA_KERNEL_WIDTH 8
+#define SPECULA_KERNEL_TARGET __attribute__((target("avx2,avx512f,avx512vl")))
+#include "accel/bvh_kernel.inc"
+#undef SPECULA_KERNEL_NS
+#undef SPECULA_KERNEL_WIDTH
+#undef SPECULA_KERNEL_TARGET
+
 class BvhTraversal {
  public:
   static BvhView view(const Bvh& bvh) {
-    const bool eight = bvh.kernel_ == BvhKernel::Avx2x8;
+    const bool eight = bvh_kernel_is_8_wide(bvh.kernel_);
     return BvhView{bvh.nodes_.data(),
                    eight ? static_cast<const void*>(bvh.wide8_.data()) : static_cast<const void*>(bvh.wide_.data()),
                    bvh.tris_.data(),
@@ -144,30 +155,46 @@ class BvhTraversal {
                    bvh.tris_.empty()};
   }
 
+  template <bool kStats>
+  static void intersect_with(BvhKernel kernel, const BvhView& v, std::span<const Ray> rays, std::span<Hit> hits,
+                             TraceStats& st) {
+    switch (kernel) {
+      case BvhKernel::Avx512x8: return avx512x8::intersect_batch<kStats>(v, rays, hits, st);
+      case BvhKernel::Avx2x8: return avx2x8::intersect_batch<kStats>(v, rays, hits, st);
+      default: return sse4::intersect_batch<kStats>(v, rays, hits, st);
+    }
+  }
+
+  template <bool kStats, bool kAnyHit>
+  static void transmit_with(BvhKernel kernel, const BvhView& v, std::span<const Ray> rays, std::span<Vec3> out,
+                            TraceStats& st) {
+    switch (kernel) {
+      case BvhKernel::Avx512x8: return avx512x8::transmit_batch<kStats, kAnyHit>(v, rays, out, st);
+      case BvhKernel::Avx2x8: return avx2x8::transmit_batch<kStats, kAnyHit>(v, rays, out, st);
+      default: return sse4::transmit_batch<kStats, kAnyHit>(v, rays, out, st);
+    }
+  }
+
   static void intersect(const Bvh& bvh, std::span<const Ray> rays, std::span<Hit> hits, TraceStats* stats) {
     const BvhView v = view(bvh);
-    const bool eight = bvh.kernel_ == BvhKernel::Avx2x8;
     TraceStats local;
     if (stats) {
-      eight ? avx2x8::intersect_batch<true>(v, rays, hits, local) : sse4::intersect_batch<true>(v, rays, hits, local);
+      intersect_with<true>(bvh.kernel_, v, rays, hits, local);
       *stats += local;
     } else {
-      eight ? avx2x8::intersect_batch<false>(v, rays, hits, local) : sse4::intersect_batch<false>(v, rays, hits, local);
+      intersect_with<false>(bvh.kernel_, v, rays, hits, local);
     }
   }
 
   template <bool kAnyHit>
   static void transmit(const Bvh& bvh, std::span<const Ray> rays, std::span<Vec3> out, TraceStats* stats) {
     const BvhView v = view(bvh);
-    const bool eight = bvh.kernel_ == BvhKernel::Avx2x8;
     TraceStats local;
     if (stats) {
-      eight ? avx2x8::transmit_batch<true, kAnyHit>(v, rays, out, local)
-            : sse4::transmit_batch<true, kAnyHit>(v, rays, out, local);
+      transmit_with<true, kAnyHit>(bvh.kernel_, v, rays, out, local);
       *stats += local;
     } else {
-      eight ? avx2x8::transmit_batch<false, kAnyHit>(v, rays, out, local)
-            : sse4::transmit_batch<false, kAnyHit>(v, rays, out, local);
+      transmit_with<false, kAnyHit>(bvh.kernel_, v, rays, out, local);
     }
   }
 };
