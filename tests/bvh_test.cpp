@@ -9,6 +9,7 @@
 #include <numeric>
 #include <sstream>
 #include <string>
+#include <unordered_map>
 #include <vector>
 
 #include <tbb/blocked_range.h>
@@ -308,6 +309,8 @@ template <class Node>
 void check_wide_layout(const Bvh& bvh, std::span<const Node> wide, size_t n) {
   if (n > 0) {
     ASSERT_FALSE(wide.empty());
+    std::unordered_map<uint32_t, uint32_t> bvh_index;  // scene index -> BVH order
+    for (uint32_t k = 0; k < bvh.prim_ids().size(); ++k) bvh_index[bvh.prim_ids()[k]] = k;
     std::vector<int> in_wide(n, 0);
     std::vector<uint32_t> todo{0};
     size_t visited = 0;
@@ -326,13 +329,16 @@ void check_wide_layout(const Bvh& bvh, std::span<const Node> wide, size_t n) {
           ASSERT_LE(size_t{w.child[i]} + nblocks, blocks.size());
           for (uint32_t j = 0; j < 4 * nblocks; ++j) {
             const BvhTriangle4& blk = blocks[w.child[i] + j / 4];
-            const uint32_t lane = j % 4, t = blk.index[lane];
+            const uint32_t lane = j % 4, id = blk.index[lane];
             if (j >= w.count[i]) {
-              EXPECT_EQ(t, kNoHit);
+              EXPECT_EQ(id, kNoHit);
               for (int k = 0; k < 3; ++k)
                 for (int a = 0; a < 3; ++a) EXPECT_TRUE(std::isnan(blk.v[k][a][lane]));
               continue;
             }
+            // Lanes carry the scene index (what a hit reports); t is its place in BVH order.
+            ASSERT_TRUE(bvh_index.count(id)) << "lane with scene index " << id << " not in the BVH";
+            const uint32_t t = bvh_index.at(id);
             ASSERT_LT(t, n);
             ++in_wide[t];
             for (int k = 0; k < 3; ++k) {

@@ -47,7 +47,7 @@ struct BvhTriangle {
 /// past its last triangle are padding (NaN vertices, never hit; index kNoHit).
 struct alignas(16) BvhTriangle4 {
   float v[3][3][4];
-  uint32_t index[4];  ///< BVH-order triangle index of each lane (into triangles()); kNoHit = padding
+  uint32_t index[4];  ///< scene (input) triangle index of each lane, as Hit::prim; kNoHit = padding
 };
 static_assert(sizeof(BvhTriangle4) == 160, "triangle blocks are 2.5 cache lines");
 
@@ -129,7 +129,7 @@ class Bvh final : public Tracer {
   std::vector<BvhTriangle, detail::AlignedAllocator<BvhTriangle>> tris_;
   std::vector<BvhTriangle4, detail::AlignedAllocator<BvhTriangle4>> tri4_;
   std::vector<uint32_t> prim_ids_;
-  std::vector<Vec3> transmittance_;  ///< BVH order; empty when every triangle is opaque
+  std::vector<Vec3> transmittance_;  ///< scene (input) order; empty when every triangle is opaque
   BuildInfo info_;
 
   friend class BvhBuilder;

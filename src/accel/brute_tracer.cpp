@@ -13,39 +13,44 @@ BruteTracer::BruteTracer(const TriangleInput& input) {
   const bool any_transparent =
       std::any_of(input.transmittance.begin(), input.transmittance.end(),
                   [](const Vec3& t) { return !is_opaque(t); });
+  std::vector<BvhTriangle> tris;
+  std::vector<uint32_t> ids;
   for (uint32_t i = 0; i < all.size(); ++i) {
     if (is_degenerate(all[i].vertex(0), all[i].vertex(1), all[i].vertex(2))) continue;
-    tris_.push_back(all[i]);
-    ids_.push_back(i);
-    if (any_transparent) transmittance_.push_back(input.transmittance[i]);
+    tris.push_back(all[i]);
+    ids.push_back(i);
   }
-  groups_.resize((tris_.size() + 3) / 4);
+  if (any_transparent) transmittance_.assign(input.transmittance.begin(), input.transmittance.end());
+  count_ = static_cast<uint32_t>(tris.size());
+  groups_.resize((tris.size() + 3) / 4);
   for (size_t g = 0; g < groups_.size(); ++g) {
     const uint32_t first = static_cast<uint32_t>(4 * g);
-    fill_block(groups_[g], tris_.data(), first, std::min<uint32_t>(4, static_cast<uint32_t>(tris_.size()) - first));
+    fill_block(groups_[g], tris.data(), ids.data(), first, std::min<uint32_t>(4, count_ - first));
   }
 }
 
 
 void BruteTracer::intersect(std::span<const Ray> rays, std::span<Hit> hits, TraceStats* stats) const {
   if (hits.size() < rays.size()) throw Error("BruteTracer::intersect: hits span smaller than rays span");
-  const uint32_t n = static_cast<uint32_t>(tris_.size());
+  const uint32_t n = count_;
   for (size_t r = 0; r < rays.size(); ++r) {
     const Ray& ray = rays[r];
     const WatertightRay wr(ray);
     Hit hit;
     hit.t = ray.tmax;
     const WatertightRay4 wr4(wr);
-    const auto closer = [&](uint32_t i, float t, float u, float v) {
-      // The smallest t wins; ties go to the later triangle (as a scalar loop with t <= best).
-      if (t <= hit.t) hit.t = t, hit.u = u, hit.v = v, hit.prim = i;
-      return false;
-    };
-    for (const BvhTriangle4& blk : groups_)
-      test_block(wr, wr4, blk, tris_.data(), ray.tmin, hit.t, closed_edges, closer);
+    const BvhTriangle4* best_blk = nullptr;
+    int best_lane = 0;
+    for (const BvhTriangle4& blk : groups_) {
+      const auto closer = [&](uint32_t i, int lane, float t, float u, float v) {
+        // The smallest t wins; ties go to the later triangle (as a scalar loop with t <= best).
+        if (t <= hit.t) hit.t = t, hit.u = u, hit.v = v, hit.prim = i, best_blk = &blk, best_lane = lane;
+        return false;
+      };
+      test_block(wr, wr4, blk, ray.tmin, hit.t, closed_edges, closer);
+    }
     if (hit.hit()) {
-      hit.ng = geometric_normal(tris_[hit.prim].v);
-      hit.prim = ids_[hit.prim];
+      hit.ng = geometric_normal(*best_blk, best_lane);
     } else {
       hit = Hit{};
     }
@@ -60,7 +65,7 @@ void BruteTracer::intersect(std::span<const Ray> rays, std::span<Hit> hits, Trac
 
 void BruteTracer::transmittance(std::span<const Ray> rays, std::span<Vec3> out, TraceStats* stats) const {
   if (out.size() < rays.size()) throw Error("BruteTracer::transmittance: out span smaller than rays span");
-  const uint32_t n = static_cast<uint32_t>(tris_.size());
+  const uint32_t n = count_;
   uint64_t tested = 0;
   for (size_t r = 0; r < rays.size(); ++r) {
     const Ray& ray = rays[r];
@@ -73,7 +78,7 @@ void BruteTracer::transmittance(std::span<const Ray> rays, std::span<Vec3> out, 
     const auto rule_of = [&](uint32_t i) {
       return transmittance_.empty() || is_opaque(transmittance_[i]) ? EdgeRule::Closed : EdgeRule::HalfOpen;
     };
-    const auto crossed = [&](uint32_t i, float t, float, float) {
+    const auto crossed = [&](uint32_t i, int, float t, float, float) {
       if (!(t > ray.tmin && t < ray.tmax)) return false;
       if (transmittance_.empty() || is_opaque(transmittance_[i])) {
         tr = Vec3{};
@@ -83,7 +88,7 @@ void BruteTracer::transmittance(std::span<const Ray> rays, std::span<Vec3> out, 
       return false;
     };
     uint32_t g = 0;
-    while (g < groups_.size() && !test_block(wr, wr4, groups_[g], tris_.data(), ray.tmin, ray.tmax, rule_of, crossed)) ++g;
+    while (g < groups_.size() && !test_block(wr, wr4, groups_[g], ray.tmin, ray.tmax, rule_of, crossed)) ++g;
     if (g < groups_.size()) ++g;
     tested += std::min(n, 4 * g);
     out[r] = tr;
@@ -96,7 +101,7 @@ void BruteTracer::transmittance(std::span<const Ray> rays, std::span<Vec3> out, 
 }
 
 size_t BruteTracer::memory_bytes() const {
-  return tris_.size() * sizeof(BvhTriangle) + groups_.size() * sizeof(BvhTriangle4) + ids_.size() * sizeof(uint32_t) + transmittance_.size() * sizeof(Vec3);
+  return groups_.size() * sizeof(BvhTriangle4) + transmittance_.size() * sizeof(Vec3);
 }
 
 }  // namespace specula::accel

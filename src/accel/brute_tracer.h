@@ -24,10 +24,10 @@ class BruteTracer final : public Tracer {
   size_t memory_bytes() const override;
 
  private:
-  std::vector<BvhTriangle> tris_;     ///< non-degenerate triangles, input order
-  std::vector<BvhTriangle4, detail::AlignedAllocator<BvhTriangle4>> groups_;  ///< tris_ in blocks of 4 (index = into tris_)
-  std::vector<uint32_t> ids_;        ///< scene index of each entry of tris_
-  std::vector<Vec3> transmittance_;  ///< per entry of tris_; empty = all opaque
+  /// The non-degenerate triangles in input order, in blocks of 4 (index = scene index).
+  std::vector<BvhTriangle4, detail::AlignedAllocator<BvhTriangle4>> groups_;
+  uint32_t count_ = 0;               ///< non-degenerate triangles in groups_
+  std::vector<Vec3> transmittance_;  ///< per scene triangle; empty = all opaque
 };
 
 }  // namespace specula::accel

@@ -769,7 +769,7 @@ Bvh Bvh::build(const TriangleInput& input, const BvhOptions& options, BuildInfo*
     const bool any_transparent =
         std::any_of(input.transmittance.begin(), input.transmittance.end(),
                     [](const Vec3& t) { return !accel::is_opaque(t); });
-    if (any_transparent) bvh.transmittance_.resize(valid);
+    if (any_transparent) bvh.transmittance_.assign(input.transmittance.begin(), input.transmittance.end());
     const auto reorder = [&](uint32_t begin, uint32_t end) {
       for (uint32_t i = begin; i < end; ++i) {
         const uint32_t id = refs[i].id();
@@ -781,7 +781,6 @@ Bvh Bvh::build(const TriangleInput& input, const BvhOptions& options, BuildInfo*
           t.v[3 * k + 1] = p.y;
           t.v[3 * k + 2] = p.z;
         }
-        if (any_transparent) bvh.transmittance_[i] = input.transmittance[id];
       }
     };
     if (parallel_reorder) {
@@ -809,7 +808,6 @@ Bvh Bvh::build(const TriangleInput& input, const BvhOptions& options, BuildInfo*
           t.v[3 * k + 2] = p.z;
         }
         bvh.tris_.push_back(t);
-        if (any_transparent) bvh.transmittance_[i] = input.transmittance[id];
       }
     }
   });
@@ -844,7 +842,7 @@ Bvh Bvh::build(const TriangleInput& input, const BvhOptions& options, BuildInfo*
           r0[lane] = on ? _mm_loadu_ps(v) : nan4;
           r1[lane] = on ? _mm_loadu_ps(v + 4) : nan4;
           last[lane] = on ? v[8] : std::numeric_limits<float>::quiet_NaN();
-          blk.index[lane] = on ? first + b + lane : kNoHit;
+          blk.index[lane] = on ? bvh.prim_ids_[first + b + lane] : kNoHit;
         }
         _MM_TRANSPOSE4_PS(r0[0], r0[1], r0[2], r0[3]);
         _MM_TRANSPOSE4_PS(r1[0], r1[1], r1[2], r1[3]);

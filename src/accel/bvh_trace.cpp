@@ -106,10 +106,8 @@ constexpr int kMaxBinaryDepth = 64 + 32;
 struct BvhView {
   const BvhNode* root;
   const void* wide;  ///< BvhNodeW<W> of the kernel
-  const BvhTriangle* tris;
-  const BvhTriangle4* blocks;
-  const uint32_t* prim_ids;
-  const Vec3* trans;  ///< per triangle in BVH order; null when all are opaque
+  const BvhTriangle4* blocks;  ///< the leaves' triangles (lanes carry scene indices)
+  const Vec3* trans;  ///< per scene triangle; null when all are opaque
   bool empty;
 };
 
@@ -148,9 +146,7 @@ class BvhTraversal {
     const bool eight = bvh_kernel_is_8_wide(bvh.kernel_);
     return BvhView{bvh.nodes_.data(),
                    eight ? static_cast<const void*>(bvh.wide8_.data()) : static_cast<const void*>(bvh.wide_.data()),
-                   bvh.tris_.data(),
                    bvh.tri4_.data(),
-                   bvh.prim_ids_.data(),
                    bvh.transmittance_.empty() ? nullptr : bvh.transmittance_.data(),
                    bvh.tris_.empty()};
   }

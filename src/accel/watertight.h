@@ -181,26 +181,32 @@ inline int intersect_watertight4(const WatertightRay4& r, const float (&v)[3][3]
 }
 
 /// Fills \p blk with triangles [first, first + count) of \p tris (count <= 4); lane i gets
-/// index first + i, the unused lanes NaN vertices and index kNoHit.
-inline void fill_block(BvhTriangle4& blk, const BvhTriangle* tris, uint32_t first, uint32_t count) {
+/// index ids[first + i] (the triangle's scene index), the unused lanes NaN vertices and kNoHit.
+inline void fill_block(BvhTriangle4& blk, const BvhTriangle* tris, const uint32_t* ids, uint32_t first, uint32_t count) {
   for (uint32_t lane = 0; lane < 4; ++lane) {
     const bool used = lane < count;
-    blk.index[lane] = used ? first + lane : kNoHit;
+    blk.index[lane] = used ? ids[first + lane] : kNoHit;
     for (int k = 0; k < 3; ++k)
       for (int a = 0; a < 3; ++a)
         blk.v[k][a][lane] = used ? tris[first + lane].v[3 * k + a] : std::numeric_limits<float>::quiet_NaN();
   }
 }
 
-/// Tests one block of four triangles and calls on_hit(index, t, u, v) for each hit lane in lane
-/// order, as testing the lanes one by one with intersect_watertight() would: \p tmax is read
-/// again before every scalar lane test, so a visitor that shrinks it (closest hit) sees the
+/// The vertices of one lane of \p blk as intersect_watertight() takes them (v0, v1, v2).
+inline void lane_vertices(const BvhTriangle4& blk, int lane, float (&v)[9]) {
+  for (int k = 0; k < 3; ++k)
+    for (int a = 0; a < 3; ++a) v[3 * k + a] = blk.v[k][a][lane];
+}
+
+/// Tests one block of four triangles and calls on_hit(index, lane, t, u, v) for each hit lane in
+/// lane order, as testing the lanes one by one with intersect_watertight() would: \p tmax is
+/// read again before every scalar lane test, so a visitor that shrinks it (closest hit) sees the
 /// same results as a scalar loop. on_hit returns true to stop; so does this function then.
-/// \p tris resolves block indices for the scalar fallback (edge functions exactly zero), where
+/// The scalar fallback (edge functions exactly zero) reads the lane's own vertices; there
 /// rule_of(index) gives the EdgeRule of that triangle.
 template <class RuleOf, class OnHit>
-inline bool test_block(const WatertightRay& wr, const WatertightRay4& wr4, const BvhTriangle4& blk,
-                       const BvhTriangle* tris, float tmin, const float& tmax, RuleOf&& rule_of, OnHit&& on_hit) {
+inline bool test_block(const WatertightRay& wr, const WatertightRay4& wr4, const BvhTriangle4& blk, float tmin,
+                       const float& tmax, RuleOf&& rule_of, OnHit&& on_hit) {
   __m128 t4, u4, v4;
   const int mask = intersect_watertight4(wr4, blk.v, _mm_set1_ps(tmin), _mm_set1_ps(tmax), t4, u4, v4);
   if (mask == 0) return false;
@@ -210,15 +216,17 @@ inline bool test_block(const WatertightRay& wr, const WatertightRay4& wr4, const
     _mm_store_ps(us, u4);
     _mm_store_ps(vs, v4);
     for (int lane = 0; lane < 4; ++lane)
-      if ((mask >> lane) & 1 && on_hit(blk.index[lane], ts[lane], us[lane], vs[lane])) return true;
+      if ((mask >> lane) & 1 && on_hit(blk.index[lane], lane, ts[lane], us[lane], vs[lane])) return true;
     return false;
   }
   // An edge function is exactly zero in some lane: the scalar test decides in double.
   for (int lane = 0; lane < 4; ++lane) {
     const uint32_t i = blk.index[lane];
     if (i == kNoHit) continue;
+    float v[9];
+    lane_vertices(blk, lane, v);
     TriHit th;
-    if (intersect_watertight(wr, tris[i].v, tmin, tmax, th, rule_of(i)) && on_hit(i, th.t, th.u, th.v)) return true;
+    if (intersect_watertight(wr, v, tmin, tmax, th, rule_of(i)) && on_hit(i, lane, th.t, th.u, th.v)) return true;
   }
   return false;
 }
@@ -230,6 +238,14 @@ inline EdgeRule closed_edges(uint32_t) { return EdgeRule::Closed; }
 inline Vec3 geometric_normal(const float* v) {
   const Vec3 v0{v[0], v[1], v[2]}, v1{v[3], v[4], v[5]}, v2{v[6], v[7], v[8]};
   return normalize(cross(v1 - v0, v2 - v0));
+}
+
+/// geometric_normal() of one lane of a block (the vertices the hit was found on: no other
+/// array, and no cache miss, to look them up in).
+inline Vec3 geometric_normal(const BvhTriangle4& blk, int lane) {
+  float v[9];
+  lane_vertices(blk, lane, v);
+  return geometric_normal(v);
 }
 
 }  // namespace specula::accel
