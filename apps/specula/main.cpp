@@ -28,7 +28,8 @@ namespace {
 using namespace specula;
 
 constexpr const char* kSceneHelp =
-    "a built-in scene (pool, glassbox, cornell), a JSON scene (.json), a glTF file (.gltf/.glb) "
+    "a built-in scene (pool, glassbox, cornell, city = a ~600k-triangle town, city:N = a town of about N "
+    "triangles, 10000 <= N <= 20000000), a JSON scene (.json), a glTF file (.gltf/.glb) "
     "or a bare mesh (.obj/.ply; gets a framing camera, a light and a default material)";
 
 void add_data_option(CLI::App* app, LoadOptions& load) {

@@ -240,7 +240,7 @@ CLI::App* add_voxelize_command(CLI::App& app, VoxelizeCommandOptions& o) {
       "the octree (specula render FILE.svo); --table\n"
       "reproduces seed 000's build-time table (depths 1-8, every test strategy, voxel counts, false positives)");
   cmd->add_option("scene", o.scene,
-                  "a built-in scene (pool, glassbox, cornell), a JSON scene, a glTF file or a mesh (.obj/.ply)")
+                  "a built-in scene (pool, glassbox, cornell, city, city:N), a JSON scene, a glTF file or a mesh (.obj/.ply)")
       ->required();
   cmd->add_option("-d,--depth", o.depth,
                   "octree depth D: 2^D voxels per axis over the scene's bounding cube (with --table: the deepest "

@@ -31,7 +31,8 @@ struct LoadOptions {
   std::function<void(const std::string&)> warn;
 };
 
-/// Loads SCENE: a built-in name ("pool", "glassbox", "cornell"), a .json scene, a .gltf/.glb
+/// Loads SCENE: a built-in name ("pool", "glassbox", "cornell", "city", "city:N" = a town of
+/// about N triangles), a .json scene, a .gltf/.glb
 /// file, or a bare .obj/.ply mesh (which gets a default camera, light and material).
 Scene load_scene(const std::string& spec, const LoadOptions& options = {});
 
@@ -40,8 +41,10 @@ Scene load_ply(const std::filesystem::path& path, const LoadOptions& options = {
 Scene load_gltf(const std::filesystem::path& path, const LoadOptions& options = {});
 Scene load_json_scene(const std::filesystem::path& path, const LoadOptions& options = {});
 
-/// Names of the built-in scenes.
+/// Names of the built-in scenes (the city's sized form "city:N" is not listed).
 std::vector<std::string> builtin_scene_names();
+/// True for a built-in name; "city:" followed by anything counts (make_builtin_scene then
+/// explains a malformed or out-of-range size).
 bool is_builtin_scene(const std::string& name);
 /// Builds a built-in scene; a missing mesh is replaced by a procedural stand-in of similar
 /// size with a warning naming the file and the search path.

@@ -19,7 +19,17 @@ constexpr Entry kScenes[] = {
     {"pool", builtin::make_pool},
     {"glassbox", builtin::make_glassbox},
     {"cornell", builtin::make_cornell},
+    {"city", builtin::make_city},
 };
+
+/// "city" and "city:..." are claimed by the city, so a malformed size gets the city's error.
+bool is_city_name(const std::string& name) { return name == "city" || name.rfind("city:", 0) == 0; }
+
+std::string available_names() {
+  std::string names;
+  for (const Entry& e : kScenes) names += (names.empty() ? "" : ", ") + std::string(e.name);
+  return names + ", city:N (N = triangles)";
+}
 
 }  // namespace
 
@@ -32,10 +42,16 @@ std::vector<std::string> builtin_scene_names() {
 bool is_builtin_scene(const std::string& name) {
   for (const Entry& e : kScenes)
     if (name == e.name) return true;
-  return false;
+  return is_city_name(name);
 }
 
 Scene make_builtin_scene(const std::string& name, const LoadOptions& options) {
+  if (is_city_name(name)) {
+    Scene s = builtin::make_city_with_triangles(*builtin::parse_city_spec(name));
+    s.name = name;
+    s.validate();
+    return s;
+  }
   for (const Entry& e : kScenes)
     if (name == e.name) {
       Scene s = e.make(options);
@@ -43,9 +59,7 @@ Scene make_builtin_scene(const std::string& name, const LoadOptions& options) {
       s.validate();
       return s;
     }
-  std::string names;
-  for (const Entry& e : kScenes) names += (names.empty() ? "" : ", ") + std::string(e.name);
-  throw Error("unknown built-in scene '" + name + "' (available: " + names + ")");
+  throw Error("unknown built-in scene '" + name + "' (available: " + available_names() + ")");
 }
 
 }  // namespace specula

@@ -61,6 +61,7 @@ Scene load_scene(const std::string& spec, const LoadOptions& options) {
   if (ext != ".json" && ext != ".gltf" && ext != ".glb" && ext != ".obj" && ext != ".ply") {
     std::string names;
     for (const std::string& n : builtin_scene_names()) names += (names.empty() ? "" : ", ") + n;
+    names += ", city:N";
     throw file_error(spec, ext.empty() ? "not a built-in scene (" + names +
                                              ") and has no file extension (.json, .gltf, .glb, "
                                              ".obj, .ply)"
