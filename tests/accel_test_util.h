@@ -18,12 +18,12 @@ namespace specula::test {
 /// Every BVH kernel this CPU runs: the tests force each one in turn.
 inline std::vector<BvhKernel> test_kernels() {
   std::vector<BvhKernel> k{BvhKernel::Sse4};
-  for (const BvhKernel wide : {BvhKernel::Avx2x8, BvhKernel::Avx512x8}) {
+  for (const BvhKernel wide : {BvhKernel::Avx2x8, BvhKernel::Avx512x8, BvhKernel::Avx512x16}) {
     if (bvh_kernel_supported(wide)) {
       k.push_back(wide);
     } else {
-      static bool said[2] = {false, false};
-      bool& s = said[wide == BvhKernel::Avx2x8 ? 0 : 1];
+      static bool said[3] = {false, false, false};
+      bool& s = said[wide == BvhKernel::Avx2x8 ? 0 : wide == BvhKernel::Avx512x8 ? 1 : 2];
       if (!s) std::printf("note: this CPU cannot run the %s BVH kernel; it is not tested here\n", bvh_kernel_name(wide));
       s = true;
     }

@@ -435,11 +435,13 @@ void check_invariants(const Bvh& bvh, const TriangleInput& input, const BvhOptio
   // The wide layout of the BVH's kernel is filled, the other one is empty.
   EXPECT_NE(bvh.kernel(), BvhKernel::Auto);
   EXPECT_EQ(bvh.kernel(), resolve_bvh_kernel(o.kernel));
-  if (bvh_kernel_is_8_wide(bvh.kernel())) {
-    EXPECT_TRUE(bvh.wide_nodes().empty());
+  const int filled = !bvh.wide_nodes().empty() + !bvh.wide8_nodes().empty() + !bvh.wide16_nodes().empty();
+  EXPECT_EQ(filled, n > 0 ? 1 : 0);
+  if (bvh.kernel() == BvhKernel::Avx512x16) {
+    check_wide_layout(bvh, bvh.wide16_nodes(), n);
+  } else if (bvh_kernel_is_8_wide(bvh.kernel())) {
     check_wide_layout(bvh, bvh.wide8_nodes(), n);
   } else {
-    EXPECT_TRUE(bvh.wide8_nodes().empty());
     check_wide_layout(bvh, bvh.wide_nodes(), n);
   }
   const BuildInfo& info = bvh.build_info();
@@ -479,7 +481,7 @@ TEST(BvhBasics, KernelNamesAndSupport) {
   EXPECT_EQ(parse_bvh_kernel("auto"), BvhKernel::Auto);
   EXPECT_EQ(parse_bvh_kernel("sse4"), BvhKernel::Sse4);
   EXPECT_EQ(parse_bvh_kernel("avx2x8"), BvhKernel::Avx2x8);
-  for (const BvhKernel k : {BvhKernel::Auto, BvhKernel::Sse4, BvhKernel::Avx2x8, BvhKernel::Avx512x8})
+  for (const BvhKernel k : {BvhKernel::Auto, BvhKernel::Sse4, BvhKernel::Avx2x8, BvhKernel::Avx512x8, BvhKernel::Avx512x16})
     EXPECT_EQ(parse_bvh_kernel(bvh_kernel_name(k)), k);
   try {
     parse_bvh_kernel("avx512");
@@ -498,6 +500,7 @@ TEST(BvhBasics, KernelNamesAndSupport) {
   // A kernel needing more than AVX2 is never supported where AVX2 is missing.
   if (!bvh_kernel_supported(BvhKernel::Avx2x8)) {
     EXPECT_FALSE(bvh_kernel_supported(BvhKernel::Avx512x8));
+    EXPECT_FALSE(bvh_kernel_supported(BvhKernel::Avx512x16));
   }
 }
 

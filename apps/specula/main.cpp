@@ -48,8 +48,9 @@ void add_bvh_options(CLI::App* app, BvhOptions& bvh) {
   app->add_option_function<std::string>(
          "--bvh-kernel", [&bvh](const std::string& k) { bvh.kernel = parse_bvh_kernel(k); },
          "BVH traversal kernel: auto (the best this CPU runs), sse4 (4-wide nodes, SSE), avx2x8 (8-wide "
-         "nodes, AVX2) or avx512x8 (8-wide nodes, AVX-512VL registers); all give bit-identical results")
-      ->check(CLI::IsMember({"auto", "sse4", "avx2x8", "avx512x8"}))
+         "nodes, AVX2), avx512x8 (8-wide nodes, AVX-512VL registers) or avx512x16 (16-wide nodes, "
+         "AVX-512); all give bit-identical results")
+      ->check(CLI::IsMember({"auto", "sse4", "avx2x8", "avx512x8", "avx512x16"}))
       ->default_str("auto");
 }
 

@@ -34,15 +34,16 @@ enum class BvhKernel {
   Sse4,    ///< 4-wide nodes, SSE slab test (x86-64 baseline)
   Avx2x8,  ///< 8-wide nodes, AVX2 slab test
   Avx512x8,  ///< the same 8-wide nodes, code compiled for AVX-512VL (32 vector registers: no spills)
+  Avx512x16,  ///< 16-wide nodes, AVX-512 slab test
 };
 
-/// Parses "auto" / "sse4" / "avx2x8" / "avx512x8"; throws specula::Error listing the valid names otherwise.
+/// Parses "auto" / "sse4" / "avx2x8" / "avx512x8" / "avx512x16"; throws specula::Error listing the valid names otherwise.
 BvhKernel parse_bvh_kernel(const std::string& name);
-/// "auto", "sse4", "avx2x8" or "avx512x8".
+/// "auto", "sse4", "avx2x8", "avx512x8" or "avx512x16".
 const char* bvh_kernel_name(BvhKernel kernel);
 /// Whether this CPU runs \p kernel (Auto: always).
 bool bvh_kernel_supported(BvhKernel kernel);
-/// Whether \p kernel walks 8-wide nodes (BvhWideNode8) rather than 4-wide ones.
+/// Whether \p kernel walks 8-wide nodes (BvhWideNode8).
 inline bool bvh_kernel_is_8_wide(BvhKernel kernel) {
   return kernel == BvhKernel::Avx2x8 || kernel == BvhKernel::Avx512x8;
 }

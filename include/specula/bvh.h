@@ -66,8 +66,10 @@ struct alignas(64) BvhNodeW {
 };
 using BvhWideNode = BvhNodeW<4>;   ///< BvhKernel::Sse4
 using BvhWideNode8 = BvhNodeW<8>;  ///< BvhKernel::Avx2x8 and Avx512x8
+using BvhWideNode16 = BvhNodeW<16>;  ///< BvhKernel::Avx512x16
 static_assert(sizeof(BvhWideNode) == 128, "4-wide nodes are two cache lines");
 static_assert(sizeof(BvhWideNode8) == 256, "8-wide nodes are four cache lines");
+static_assert(sizeof(BvhWideNode16) == 512, "16-wide nodes are eight cache lines");
 
 namespace detail {
 /// Minimal allocator for cache-line aligned arrays (nodes, triangles).
@@ -113,6 +115,8 @@ class Bvh final : public Tracer {
   std::span<const BvhWideNode> wide_nodes() const { return wide_; }
   /// The 8-wide traversal layout derived from nodes() (8-wide kernels; empty otherwise).
   std::span<const BvhWideNode8> wide8_nodes() const { return wide8_; }
+  /// The 16-wide traversal layout derived from nodes() (BvhKernel::Avx512x16; empty otherwise).
+  std::span<const BvhWideNode16> wide16_nodes() const { return wide16_; }
   std::span<const BvhTriangle> triangles() const { return tris_; }
   /// The leaves' triangles in blocks of four (what the leaf tests actually read).
   std::span<const BvhTriangle4> triangle_blocks() const { return tri4_; }
@@ -125,6 +129,7 @@ class Bvh final : public Tracer {
   std::vector<BvhNode, detail::AlignedAllocator<BvhNode>> nodes_;
   std::vector<BvhWideNode, detail::AlignedAllocator<BvhWideNode>> wide_;
   std::vector<BvhWideNode8, detail::AlignedAllocator<BvhWideNode8>> wide8_;
+  std::vector<BvhWideNode16, detail::AlignedAllocator<BvhWideNode16>> wide16_;
   BvhKernel kernel_ = BvhKernel::Sse4;
   std::vector<BvhTriangle, detail::AlignedAllocator<BvhTriangle>> tris_;
   std::vector<BvhTriangle4, detail::AlignedAllocator<BvhTriangle4>> tri4_;

@@ -24,7 +24,8 @@ BvhKernel parse_bvh_kernel(const std::string& name) {
   if (name == "sse4") return BvhKernel::Sse4;
   if (name == "avx2x8") return BvhKernel::Avx2x8;
   if (name == "avx512x8") return BvhKernel::Avx512x8;
-  throw Error("unknown BVH kernel '" + name + "' (valid: auto, sse4, avx2x8, avx512x8)");
+  if (name == "avx512x16") return BvhKernel::Avx512x16;
+  throw Error("unknown BVH kernel '" + name + "' (valid: auto, sse4, avx2x8, avx512x8, avx512x16)");
 }
 
 const char* bvh_kernel_name(BvhKernel kernel) {
@@ -33,6 +34,7 @@ const char* bvh_kernel_name(BvhKernel kernel) {
     case BvhKernel::Sse4: return "sse4";
     case BvhKernel::Avx2x8: return "avx2x8";
     case BvhKernel::Avx512x8: return "avx512x8";
+    case BvhKernel::Avx512x16: return "avx512x16";
   }
   return "?";
 }
@@ -43,6 +45,7 @@ bool bvh_kernel_supported(BvhKernel kernel) {
     case BvhKernel::Sse4: return true;
     case BvhKernel::Avx2x8: return __builtin_cpu_supports("avx2");
     case BvhKernel::Avx512x8:
+    case BvhKernel::Avx512x16:
       return __builtin_cpu_supports("avx2") && __builtin_cpu_supports("avx512f") && __builtin_cpu_supports("avx512vl");
   }
   return false;

@@ -896,7 +896,9 @@ Bvh Bvh::build(const TriangleInput& input, const BvhOptions& options, BuildInfo*
       };
       collapse(collapse, 0);
     };
-    if (bvh_kernel_is_8_wide(bvh.kernel_)) {
+    if (bvh.kernel_ == BvhKernel::Avx512x16) {
+      collapse_into(bvh.wide16_);
+    } else if (bvh_kernel_is_8_wide(bvh.kernel_)) {
       collapse_into(bvh.wide8_);
     } else {
       collapse_into(bvh.wide_);
@@ -953,7 +955,7 @@ Aabb Bvh::bounds() const {
 }
 
 size_t Bvh::memory_bytes() const {
-  return nodes_.size() * sizeof(BvhNode) + wide_.size() * sizeof(BvhWideNode) + wide8_.size() * sizeof(BvhWideNode8) +
+  return nodes_.size() * sizeof(BvhNode) + wide_.size() * sizeof(BvhWideNode) + wide8_.size() * sizeof(BvhWideNode8) + wide16_.size() * sizeof(BvhWideNode16) +
          tris_.size() * sizeof(BvhTriangle) +
          tri4_.size() * sizeof(BvhTriangle4) +
          prim_ids_.size() * sizeof(uint32_t) + transmittance_.size() * sizeof(Vec3);

@@ -140,12 +140,23 @@ struct BvhView {
 #undef SPECULA_KERNEL_WIDTH
 #undef SPECULA_KERNEL_TARGET
 
+#define SPECULA_KERNEL_NS avx512x16
+#define SPECULA_KERNEL_WIDTH 16
+#define SPECULA_KERNEL_TARGET __attribute__((target("avx2,avx512f,avx512vl")))
+#include "accel/bvh_kernel.inc"
+#undef SPECULA_KERNEL_NS
+#undef SPECULA_KERNEL_WIDTH
+#undef SPECULA_KERNEL_TARGET
+
 class BvhTraversal {
  public:
   static BvhView view(const Bvh& bvh) {
     const bool eight = bvh_kernel_is_8_wide(bvh.kernel_);
+    const bool sixteen = bvh.kernel_ == BvhKernel::Avx512x16;
     return BvhView{bvh.nodes_.data(),
-                   eight ? static_cast<const void*>(bvh.wide8_.data()) : static_cast<const void*>(bvh.wide_.data()),
+                   sixteen ? static_cast<const void*>(bvh.wide16_.data())
+                   : eight ? static_cast<const void*>(bvh.wide8_.data())
+                           : static_cast<const void*>(bvh.wide_.data()),
                    bvh.tri4_.data(),
                    bvh.transmittance_.empty() ? nullptr : bvh.transmittance_.data(),
                    bvh.tris_.empty()};
@@ -155,6 +166,7 @@ class BvhTraversal {
   static void intersect_with(BvhKernel kernel, const BvhView& v, std::span<const Ray> rays, std::span<Hit> hits,
                              TraceStats& st) {
     switch (kernel) {
+      case BvhKernel::Avx512x16: return avx512x16::intersect_batch<kStats>(v, rays, hits, st);
       case BvhKernel::Avx512x8: return avx512x8::intersect_batch<kStats>(v, rays, hits, st);
       case BvhKernel::Avx2x8: return avx2x8::intersect_batch<kStats>(v, rays, hits, st);
       default: return sse4::intersect_batch<kStats>(v, rays, hits, st);
@@ -165,6 +177,7 @@ class BvhTraversal {
   static void transmit_with(BvhKernel kernel, const BvhView& v, std::span<const Ray> rays, std::span<Vec3> out,
                             TraceStats& st) {
     switch (kernel) {
+      case BvhKernel::Avx512x16: return avx512x16::transmit_batch<kStats, kAnyHit>(v, rays, out, st);
       case BvhKernel::Avx512x8: return avx512x8::transmit_batch<kStats, kAnyHit>(v, rays, out, st);
       case BvhKernel::Avx2x8: return avx2x8::transmit_batch<kStats, kAnyHit>(v, rays, out, st);
       default: return sse4::transmit_batch<kStats, kAnyHit>(v, rays, out, st);
