@@ -152,6 +152,18 @@ TEST_F(Cli, BenchTraceJsonHasEveryRayKindAndTheKernel) {
   for (const char* k : {"primary", "shadow", "reflection", "refraction", "diffuse", "random"})
     EXPECT_NE(t.out.find(std::string("\n") + k + " "), std::string::npos) << k << "\n" << t.out;
   EXPECT_NE(run_cli("bench trace --scene cornell --bvh-kernel avx9", dir_).exit_code, 0);
+  // A scene in zones also times one BVH per zone (seed 002's build), in JSON and in the table.
+  const RunResult z = run_cli("bench trace --scene city:10000 --width 8 --height 6 --repeat 1 --no-embree --json", dir_);
+  ASSERT_EQ(z.exit_code, 0) << z.err;
+  const nlohmann::json zj = nlohmann::json::parse(z.out);
+  ASSERT_TRUE(zj.contains("zones")) << z.out;
+  EXPECT_GT(zj["zones"]["count"].get<int>(), 10);
+  EXPECT_EQ(zj["zones"]["triangles"].get<int>(), zj["triangles"].get<int>());
+  EXPECT_GT(zj["zones"]["build_ms_1t"].get<double>(), 0.0);
+  const fs::path quad = write("quad.obj", kQuadObj);
+  const RunResult one = run_cli("bench trace --mesh " + quad.string() + " --width 8 --height 6 --repeat 1 --no-embree --json", dir_);
+  ASSERT_EQ(one.exit_code, 0) << one.err;
+  EXPECT_FALSE(nlohmann::json::parse(one.out).contains("zones")) << "a bare mesh is one zone: " << one.out;
 }
 
 TEST_F(Cli, BenchRenderPrintsFrameRatesAndSeedFigures) {
