@@ -1325,14 +1325,7 @@ Scene make_city_with_triangles(uint64_t target) {
     s.lights.push_back(l);
   }
 
-  auto camera = [&s](const char* name, Vec3 pos, Vec3 look_at, float vfov) {
-    Camera c;
-    c.name = name;
-    c.position = pos;
-    c.target = look_at;
-    c.vfov_degrees = vfov;
-    s.cameras.push_back(c);
-  };
+  const auto camera = [&s](const char* name, Vec3 pos, Vec3 look_at, float vfov) { add_camera(s, name, pos, look_at, vfov); };
   // street: eye height in the x-line west of the canal, looking north along the street.
   const float xs = L.xc(sx), zs = L.bz1(L.bridge) - 8.0f;
   camera("street", {xs + 1.5f, 1.7f, zs}, {xs - 0.5f, 3.5f, zs - 60.0f}, 55.0f);

@@ -114,6 +114,15 @@ MeshBuilder icosphere(const Vec3& centre, float radius, int levels) {
   return m;
 }
 
+void add_camera(Scene& scene, const char* name, const Vec3& position, const Vec3& target, float vfov_degrees) {
+  Camera c;
+  c.name = name;
+  c.position = position;
+  c.target = target;
+  c.vfov_degrees = vfov_degrees;
+  scene.cameras.push_back(c);
+}
+
 Mat4 face_frame(int axis, float sign, float offset) {
   const int k1 = (axis + 1) % 3, k2 = (axis + 2) % 3;
   Vec3 u, v, n;

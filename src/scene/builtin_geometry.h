@@ -51,4 +51,8 @@ Mat4 face_frame(int axis, float sign, float offset);
 void checker_quads(MeshBuilder& even, MeshBuilder& odd, const Vec3& c, const Vec3& u,
                    const Vec3& v, int nu, int nv);
 
+/// Appends a named pinhole camera at \p position looking at \p target with vertical field of
+/// view \p vfov_degrees to \p scene (the first one added is the scene's default).
+void add_camera(Scene& scene, const char* name, const Vec3& position, const Vec3& target, float vfov_degrees);
+
 }  // namespace specula::builtin

@@ -167,14 +167,7 @@ Scene make_pool_with_bunny(const LoadOptions& options, const std::filesystem::pa
   sun.intensity = 1.0f;
   s.lights.push_back(sun);
 
-  auto camera = [&s](const char* name, Vec3 pos, Vec3 target, float vfov) {
-    Camera c;
-    c.name = name;
-    c.position = pos;
-    c.target = target;
-    c.vfov_degrees = vfov;
-    s.cameras.push_back(c);
-  };
+  const auto camera = [&s](const char* name, Vec3 pos, Vec3 target, float vfov) { add_camera(s, name, pos, target, vfov); };
   camera("overview", {3.6f, 2.6f, 4.4f}, {-0.2f, -0.45f, 0.0f}, 42.0f);
   // The whole screen is water (seed 000, figure 1.2): looking steeply down at the free half.
   camera("water", {1.15f, 1.2f, 0.45f}, {1.15f, kWater, -0.3f}, 35.0f);
