@@ -494,7 +494,7 @@ TEST(BvhBasics, KernelNamesAndSupport) {
   EXPECT_EQ(resolve_bvh_kernel(BvhKernel::Sse4), BvhKernel::Sse4);
   // Auto takes the widest kernel the CPU runs.
   EXPECT_EQ(resolve_bvh_kernel(BvhKernel::Auto),
-            bvh_kernel_supported(BvhKernel::Avx512x8) ? BvhKernel::Avx512x8
+            bvh_kernel_supported(BvhKernel::Avx512x16) ? BvhKernel::Avx512x16
             : bvh_kernel_supported(BvhKernel::Avx2x8) ? BvhKernel::Avx2x8
                                                       : BvhKernel::Sse4);
   // A kernel needing more than AVX2 is never supported where AVX2 is missing.

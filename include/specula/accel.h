@@ -28,7 +28,8 @@ struct TriangleInput {
 };
 
 /// The traversal layout and kernels of a BVH (Bvh::build collapses the binary SAH tree into
-/// it). Auto picks the widest the CPU runs (checked at run time, one binary for every x86-64).
+/// it). Auto picks the best the CPU runs (checked at run time, one binary for every x86-64):
+/// avx512x16, else avx2x8, else sse4.
 enum class BvhKernel {
   Auto,
   Sse4,    ///< 4-wide nodes, SSE slab test (x86-64 baseline)

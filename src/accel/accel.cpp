@@ -53,7 +53,9 @@ bool bvh_kernel_supported(BvhKernel kernel) {
 
 BvhKernel resolve_bvh_kernel(BvhKernel kernel) {
   if (kernel != BvhKernel::Auto) return kernel;
-  if (bvh_kernel_supported(BvhKernel::Avx512x8)) return BvhKernel::Avx512x8;
+  // Measured on the bunny and city (BENCHMARKS.md): 16-wide nodes beat 8-wide ones on most ray
+  // kinds where AVX-512 exists; avx512x8 stays selectable.
+  if (bvh_kernel_supported(BvhKernel::Avx512x16)) return BvhKernel::Avx512x16;
   return bvh_kernel_supported(BvhKernel::Avx2x8) ? BvhKernel::Avx2x8 : BvhKernel::Sse4;
 }
 
