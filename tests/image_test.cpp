@@ -6,10 +6,13 @@
 #include <unistd.h>
 
 #include <cmath>
+#include <cstring>
 #include <filesystem>
 #include <fstream>
 #include <iterator>
 #include <vector>
+
+#include <tinyexr.h>
 
 #include "specula/accel.h"
 #include "specula/error.h"
@@ -86,6 +89,43 @@ TEST(Image, PngClampsAndReinhardCompresses) {
   EXPECT_NEAR(c[1].x, 0.0f, 1e-6f);      // NaN -> black
   EXPECT_NEAR(r[0].x, 0.8f, 0.01f);      // 4 / (1 + 4)
   EXPECT_NEAR(r[0].y, 0.5f, 0.01f);      // 1 / (1 + 1)
+}
+
+TEST(Image, ExrWithoutRgbChannelsIsRefusedNotReadOutOfBounds) {
+  // Two float channels named A and Z: no R, G or B to take (used to index channel -1).
+  const auto dir = test::temp_dir("exr_az");
+  const int w = 4, h = 2;
+  std::vector<float> a(w * h, 0.5f), z(w * h, 2.0f);
+  float* planes[2] = {a.data(), z.data()};
+  EXRHeader header;
+  InitEXRHeader(&header);
+  EXRImage image;
+  InitEXRImage(&image);
+  image.num_channels = 2;
+  image.images = reinterpret_cast<unsigned char**>(planes);
+  image.width = w;
+  image.height = h;
+  EXRChannelInfo channels[2];
+  std::memset(channels, 0, sizeof channels);
+  std::strcpy(channels[0].name, "A");
+  std::strcpy(channels[1].name, "Z");
+  int types[2] = {TINYEXR_PIXELTYPE_FLOAT, TINYEXR_PIXELTYPE_FLOAT};
+  header.num_channels = 2;
+  header.channels = channels;
+  header.pixel_types = types;
+  header.requested_pixel_types = types;
+  const std::string path = (dir / "az.exr").string();
+  const char* err = nullptr;
+  ASSERT_EQ(SaveEXRImageToFile(&image, &header, path.c_str(), &err), TINYEXR_SUCCESS) << (err ? err : "");
+  int rw = 0, rh = 0;
+  try {
+    read_image(path, rw, rh);
+    FAIL() << "an EXR without RGB channels was accepted";
+  } catch (const Error& e) {
+    EXPECT_NE(std::string(e.what()).find("no R, G and B channels"), std::string::npos) << e.what();
+    EXPECT_NE(std::string(e.what()).find("az.exr"), std::string::npos) << e.what();
+  }
+  fs::remove_all(dir);
 }
 
 TEST(Image, ExrRoundTripIsLinearHalf) {

@@ -149,12 +149,13 @@ std::string summarize(const std::string& text, size_t max_lines) {
 }
 
 /// Indices of the "v" lines that contain a nan / inf token (tinyobjloader turns those into 0).
+/// Lines end at '\n', '\r' or "\r\n", as tinyobjloader splits them (so vertex numbers agree).
 std::vector<size_t> non_finite_vertices(const std::string& text) {
   std::vector<size_t> out;
   size_t vertex = 0;
   size_t pos = 0;
   while (pos < text.size()) {
-    size_t end = text.find('\n', pos);
+    size_t end = text.find_first_of("\r\n", pos);
     if (end == std::string::npos) end = text.size();
     size_t i = pos;
     while (i < end && (text[i] == ' ' || text[i] == '\t')) ++i;
@@ -178,12 +179,30 @@ std::vector<size_t> non_finite_vertices(const std::string& text) {
   return out;
 }
 
+/// Turns "vw" lines (skin weights, an OBJ extension specula does not use) into comments before
+/// tinyobjloader sees them: it converts their joint ids from float to int unchecked, which is
+/// undefined behaviour for "inf" or "1e999" (found by fuzz_obj). Lines end at '\n', '\r' or
+/// "\r\n" and start after blanks, exactly as tinyobjloader splits them.
+void comment_out_skin_weights(std::string& text) {
+  size_t pos = 0;
+  while (pos < text.size()) {
+    size_t end = text.find_first_of("\r\n", pos);
+    if (end == std::string::npos) end = text.size();
+    size_t i = pos;
+    while (i < end && (text[i] == ' ' || text[i] == '\t')) ++i;
+    if (i + 2 < end && text[i] == 'v' && text[i + 1] == 'w' && (text[i + 2] == ' ' || text[i + 2] == '\t'))
+      text[i] = '#';
+    pos = end + 1;
+  }
+}
+
 }  // namespace
 
 Scene load_obj(const fs::path& path, const LoadOptions& options) {
   const std::string file = path.string();
   std::string text = detail::read_file(path);
   const std::vector<size_t> non_finite = non_finite_vertices(text);
+  comment_out_skin_weights(text);
   std::istringstream in(std::move(text));  // C++20: no copy
 
   ConfinedMaterialReader reader(path.parent_path());

@@ -12,6 +12,7 @@
 #include <array>
 #include <charconv>
 #include <cmath>
+#include <cstdio>
 #include <cstring>
 #include <limits>
 #include <optional>
@@ -317,16 +318,22 @@ class PlyReader {
   uint64_t read_count(const Property& p, const Element& e, uint64_t i) {
     const double c = read_value(p.count_type, e, i);
     if (!(c >= 0.0)) fail(where(e, i) + "negative list count for '" + p.name + "'");
-    const uint64_t n = static_cast<uint64_t>(c);
     const uint64_t left = data_.size() - cur_;
     // Binary: exact byte count. Ascii: one character plus a separator per value, except that
     // the very last value of the file may end without a separator.
     const bool ascii = format_ == Format::Ascii;
     const uint64_t per = ascii ? 2 : type_size(p.type);
-    if (n > (ascii ? (left + 1) / per : left / per))
-      fail(where(e, i) + "list '" + p.name + "' claims " + with_thousands(n) +
+    const uint64_t most = ascii ? (left + 1) / per : left / per;
+    // Compared as a double before the conversion: an ascii count may be any number (1e308 or
+    // inf), and converting one beyond 2^64 to an integer is undefined behaviour.
+    if (c > static_cast<double>(most)) {
+      char huge[32];
+      std::snprintf(huge, sizeof huge, "%g", c);
+      fail(where(e, i) + "list '" + p.name + "' claims " +
+           (c < 1.8e19 ? with_thousands(static_cast<uint64_t>(c)) : std::string(huge)) +
            " entries, more than the rest of the file holds (truncated data?)");
-    return n;
+    }
+    return static_cast<uint64_t>(c);
   }
 
   void skip_property(const Element& e, uint64_t i, const Property& p) {
