@@ -148,52 +148,53 @@ std::string summarize(const std::string& text, size_t max_lines) {
   return out;
 }
 
-/// Indices of the "v" lines that contain a nan / inf token (tinyobjloader turns those into 0).
-/// Lines end at '\n', '\r' or "\r\n", as tinyobjloader splits them (so vertex numbers agree).
-std::vector<size_t> non_finite_vertices(const std::string& text) {
-  std::vector<size_t> out;
-  size_t vertex = 0;
+/// Calls fn(first, end) for every line of \p text: first = index of its first character after
+/// leading blanks, end = index just past it. Lines end at '\n', '\r' or "\r\n", as tinyobjloader
+/// splits them (so line and vertex numbers agree with what it parses).
+template <class Fn>
+void for_each_line(const std::string& text, Fn&& fn) {
   size_t pos = 0;
   while (pos < text.size()) {
     size_t end = text.find_first_of("\r\n", pos);
     if (end == std::string::npos) end = text.size();
     size_t i = pos;
     while (i < end && (text[i] == ' ' || text[i] == '\t')) ++i;
-    if (i + 1 < end && text[i] == 'v' && (text[i + 1] == ' ' || text[i + 1] == '\t')) {
-      bool bad = false;
-      // Ignore trailing comments ("# banana"); search this line only.
-      const size_t stop = static_cast<size_t>(
-          std::find(text.begin() + static_cast<std::ptrdiff_t>(i), text.begin() + static_cast<std::ptrdiff_t>(end), '#') -
-          text.begin());
-      for (size_t k = i + 2; k + 2 < stop && !bad; ++k) {
-        const char a = static_cast<char>(std::tolower(static_cast<unsigned char>(text[k])));
-        const char b = static_cast<char>(std::tolower(static_cast<unsigned char>(text[k + 1])));
-        const char c = static_cast<char>(std::tolower(static_cast<unsigned char>(text[k + 2])));
-        bad = (a == 'n' && b == 'a' && c == 'n') || (a == 'i' && b == 'n' && c == 'f');
-      }
-      if (bad) out.push_back(vertex);
-      ++vertex;
-    }
+    fn(i, end);
     pos = end + 1;
   }
+}
+
+/// Indices of the "v" lines that contain a nan / inf token (tinyobjloader turns those into 0).
+std::vector<size_t> non_finite_vertices(const std::string& text) {
+  std::vector<size_t> out;
+  size_t vertex = 0;
+  for_each_line(text, [&](size_t i, size_t end) {
+    if (!(i + 1 < end && text[i] == 'v' && (text[i + 1] == ' ' || text[i + 1] == '\t'))) return;
+    bool bad = false;
+    // Ignore trailing comments ("# banana"); search this line only.
+    const size_t stop = static_cast<size_t>(
+        std::find(text.begin() + static_cast<std::ptrdiff_t>(i), text.begin() + static_cast<std::ptrdiff_t>(end), '#') -
+        text.begin());
+    for (size_t k = i + 2; k + 2 < stop && !bad; ++k) {
+      const char a = static_cast<char>(std::tolower(static_cast<unsigned char>(text[k])));
+      const char b = static_cast<char>(std::tolower(static_cast<unsigned char>(text[k + 1])));
+      const char c = static_cast<char>(std::tolower(static_cast<unsigned char>(text[k + 2])));
+      bad = (a == 'n' && b == 'a' && c == 'n') || (a == 'i' && b == 'n' && c == 'f');
+    }
+    if (bad) out.push_back(vertex);
+    ++vertex;
+  });
   return out;
 }
 
 /// Turns "vw" lines (skin weights, an OBJ extension specula does not use) into comments before
 /// tinyobjloader sees them: it converts their joint ids from float to int unchecked, which is
-/// undefined behaviour for "inf" or "1e999" (found by fuzz_obj). Lines end at '\n', '\r' or
-/// "\r\n" and start after blanks, exactly as tinyobjloader splits them.
+/// undefined behaviour for "inf" or "1e999" (found by fuzz_obj).
 void comment_out_skin_weights(std::string& text) {
-  size_t pos = 0;
-  while (pos < text.size()) {
-    size_t end = text.find_first_of("\r\n", pos);
-    if (end == std::string::npos) end = text.size();
-    size_t i = pos;
-    while (i < end && (text[i] == ' ' || text[i] == '\t')) ++i;
+  for_each_line(text, [&text](size_t i, size_t end) {
     if (i + 2 < end && text[i] == 'v' && text[i + 1] == 'w' && (text[i + 2] == ' ' || text[i + 2] == '\t'))
-      text[i] = '#';
-    pos = end + 1;
-  }
+      text[i] = '#';  // one character in place: the line positions for_each_line holds stay valid
+  });
 }
 
 }  // namespace
