@@ -1,6 +1,7 @@
 /// \file bvh.h
-/// Binary bounding volume hierarchy over triangles: binned-SAH build (multi-threaded with TBB),
-/// flat 32-byte nodes, triangles stored in BVH order for the watertight ray/triangle test.
+/// Bounding volume hierarchy over triangles: binned-SAH build of a binary tree (multi-threaded
+/// with TBB, flat 32-byte nodes), collapsed into the 4-, 8- or 16-wide node layout of the
+/// traversal kernel (BvhKernel), leaves as blocks of four triangles for the watertight test.
 ///
 /// Layout follows Bikker's lecture (seed 004): a node is {min, leftFirst, max, count}; an interior
 /// node has count == 0 and its children at leftFirst and leftFirst + 1 (siblings share one
