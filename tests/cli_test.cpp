@@ -102,6 +102,11 @@ TEST_F(Cli, RenderWritesImageAndPrintsTimings) {
   const RunResult r = run_cli("render cornell --width 64 --height 48 --aov depth,cost -o '" + png.string() + "'", dir_);
   ASSERT_EQ(r.exit_code, 0) << r.err;
   for (const char* key : {"load", "build", "render", "Mrays/s", " ms"}) EXPECT_NE(r.out.find(key), std::string::npos) << r.out;
+  // The build line names the traversal kernel auto chose; --bvh-kernel sse4 is honoured.
+  EXPECT_TRUE(r.out.find("(bvh sse4: ") != std::string::npos || r.out.find("(bvh avx") != std::string::npos) << r.out;
+  const RunResult k = run_cli("render cornell --width 8 --height 6 --bvh-kernel sse4 -o '" + (dir_ / "k.png").string() + "'", dir_);
+  ASSERT_EQ(k.exit_code, 0) << k.err;
+  EXPECT_NE(k.out.find("(bvh sse4: "), std::string::npos) << k.out;
   EXPECT_TRUE(fs::exists(png));
   EXPECT_TRUE(fs::exists(dir_ / "cornell.depth.png"));
   EXPECT_TRUE(fs::exists(dir_ / "cornell.cost.png"));

@@ -92,7 +92,9 @@ PreparedScene prepare_scene(const std::string& spec, const LoadOptions& load, co
   out.tracer = build_tracer(parse_accel_kind(accel), TriangleInput{scene.positions, scene.indices, transmittance}, bvh, &build);
   out.build_ms = build.build_ms;
   out.bytes = build.bytes;
-  print_build(accel.c_str(), build);
+  // Name the BVH's traversal kernel (what --bvh-kernel auto chose on this CPU).
+  const std::string label = accel == "bvh" ? accel + " " + bvh_kernel_name(resolve_bvh_kernel(bvh.kernel)) : accel;
+  print_build(label.c_str(), build);
   return out;
 }
 
