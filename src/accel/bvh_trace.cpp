@@ -2,14 +2,14 @@
 //
 // Stack-based traversal (seed 004; seed 002, section 3.3.4) of the wide layout derived from the
 // binary tree (BvhNodeW): one slab test covers all children of a node, 4 with SSE
-// (BvhKernel::Sse4, the x86-64 baseline) or 8 with AVX2 (BvhKernel::Avx2x8, and Avx512x8: the
-// same code with AVX-512VL's 32 registers); hit children are
-// visited nearest first, the others pushed with their entry distance, and popped subtrees
-// farther than the current closest hit are skipped. Wider nodes mean fewer dependent node
-// fetches and unpredictable branches per ray (measured on bunny bounce rays: binary 25, 4-wide
-// 14, 8-wide 9 node visits). The kernels are one source (bvh_kernel.inc) compiled once per
-// kernel with its target attribute, chosen per BVH at build time (CPUID), so one binary runs on
-// every x86-64 and uses AVX2 / AVX-512 where the CPU has them.
+// (BvhKernel::Sse4, the x86-64 baseline), 8 with AVX2 (Avx2x8, and Avx512x8: the same code with
+// AVX-512VL's 32 registers) or 16 with AVX-512 (Avx512x16); hit children are visited nearest
+// first, the others pushed with their entry distance, and popped subtrees farther than the
+// current closest hit are skipped. Wider nodes mean fewer dependent node fetches and
+// unpredictable branches per ray (bunny bounce rays: binary 25, 4-wide 14, 8-wide 9, 16-wide
+// 7.6 node visits). The kernels are one source (bvh_kernel.inc) compiled once per kernel with
+// its target attribute, chosen per BVH at build time (CPUID), so one binary runs on every
+// x86-64 and uses AVX2 / AVX-512 where the CPU has them.
 //
 // Ray/box: slab test with a precomputed reciprocal direction; near and far planes are chosen
 // once per ray from the direction signs. A zero direction component has an infinite reciprocal;
@@ -113,7 +113,7 @@ struct BvhView {
 
 }  // namespace
 
-// The two kernels: one source, compiled for 4-wide SSE and for 8-wide AVX2.
+// The kernels: one source, compiled per node width and instruction set.
 #define SPECULA_KERNEL_NS sse4
 #define SPECULA_KERNEL_WIDTH 4
 #define SPECULA_KERNEL_TARGET
