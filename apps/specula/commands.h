@@ -67,6 +67,7 @@ struct VoxelizeCommandOptions {
   std::string sat_at = "leaf";
   std::string traversal;           ///< "octree" | "range"; empty = range (octree for --sat-at all)
   bool vertex_shortcut = true;
+  bool clip_shortcut = true;
   bool attributes = true;
   int threads = 0;
   uint64_t memory_limit = 0;       ///< 0 = default (half the physical memory)

@@ -66,6 +66,10 @@ struct VoxelStrategy {
   bool sat = true;              ///< full separating-axis test (exact); off = inexact result
   SatLevel sat_at = SatLevel::Leaf;
   bool vertex_shortcut = true;  ///< a vertex inside the leaf voxel accepts it without SAT
+  /// With attributes (the triangle is clipped to each voxel anyway): a voxel whose clipped
+  /// part lies inside it, by a margin far above the clipping's rounding, is accepted without
+  /// the tests. Exact (true overlap passes every strategy's tests); a pure speed-up.
+  bool clip_shortcut = true;
   VoxelTraversal traversal = VoxelTraversal::Range;
 
   /// True when the result is the exact voxel set (the SAT runs).
@@ -90,7 +94,7 @@ struct VoxelizeOptions {
 struct VoxelizeStats {
   double ms = 0.0;               ///< total wall time of voxelize()
   double prepare_ms = 0.0;       ///< validation, snapping to the lattice, memory estimate
-  double bin_ms = 0.0;           ///< descent to the brick level, sorting into bricks
+  double bin_ms = 0.0;           ///< bricks of each triangle (tests for those in several), sort
   double voxel_ms = 0.0;         ///< leaf tests, clipping and averaging per brick
   double gather_ms = 0.0;        ///< concatenating the bricks into the VoxelSet
   uint64_t triangles = 0;
@@ -102,6 +106,7 @@ struct VoxelizeStats {
   uint64_t plane_tests = 0;
   uint64_t sat_tests = 0;        ///< 9-axis edge tests (the expensive part of the SAT)
   uint64_t vertex_hits = 0;      ///< leaves accepted by the vertex-inside shortcut
+  uint64_t clip_accepts = 0;     ///< leaves accepted by the clipped-part shortcut (no tests run)
   uint64_t bytes = 0;            ///< size of the returned VoxelSet's arrays
   uint64_t estimate_bytes = 0;   ///< the up-front upper bound checked against the limit
   uint64_t memory_limit = 0;     ///< the limit that was applied

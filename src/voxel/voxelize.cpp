@@ -54,6 +54,7 @@ std::string VoxelStrategy::describe() const {
   if (plane) s += "+plane";
   if (sat) s += sat_at == SatLevel::All ? "+sat (every level)" : "+sat (leaf level)";
   if (vertex_shortcut) s += ", vertex shortcut";
+  if (clip_shortcut) s += ", clip shortcut";
   s += traversal == VoxelTraversal::Octree ? ", octree descent" : ", brick + bbox range";
   return s;
 }
@@ -193,17 +194,46 @@ Checked check(const VoxelizeInput& in, const VoxelizeOptions& o) {
   return c;
 }
 
-/// Vertex -> lattice coordinates (see tri_box.h): [0, 2^29] over the root cube.
+/// A vertex on the integer lattice of tri_box.h: [0, 2^29] per axis over the root cube.
+using LatticePoint = std::array<int32_t, 3>;
+
+/// Vertex -> lattice coordinates. Non-finite input (only possible for vertices no triangle
+/// uses: check() rejects the others) maps to 0.
 struct Snapper {
   double origin[3];
   double scale;
   explicit Snapper(const VoxelGrid& g)
       : origin{g.origin.x, g.origin.y, g.origin.z}, scale(static_cast<double>(kLatticeSide) / g.side) {}
-  void operator()(const Vec3& p, int64_t out[3]) const {
+  LatticePoint operator()(const Vec3& p) const {
+    LatticePoint out;
     for (int k = 0; k < 3; ++k) {
       const double v = std::nearbyint((static_cast<double>(p[k]) - origin[k]) * scale);
       // Vertices on the far side can land a rounding step outside (the side is a float).
-      out[k] = static_cast<int64_t>(std::clamp(v, 0.0, static_cast<double>(kLatticeSide)));
+      out[k] = v >= 0.0 ? (v <= static_cast<double>(kLatticeSide) ? static_cast<int32_t>(v) : int32_t{1} << kLatticeBits)
+                        : 0;
+    }
+    return out;
+  }
+};
+
+/// Every position snapped to the lattice (positions no triangle uses included: cheaper than
+/// finding them, and as many as the positions).
+std::vector<LatticePoint> snap_positions(const VoxelizeInput& in, const VoxelGrid& grid) {
+  const Snapper snap(grid);
+  std::vector<LatticePoint> out(in.positions.size());
+  tbb::parallel_for(tbb::blocked_range<size_t>(0, out.size(), 8192), [&](const tbb::blocked_range<size_t>& r) {
+    for (size_t i = r.begin(); i < r.end(); ++i) out[i] = snap(in.positions[i]);
+  });
+  return out;
+}
+
+/// The lattice vertices of triangle \p t.
+struct LatticeTri {
+  int64_t v[3][3];
+  LatticeTri(const VoxelizeInput& in, const std::vector<LatticePoint>& lat, size_t t) {
+    for (int i = 0; i < 3; ++i) {
+      const LatticePoint& p = lat[in.indices[3 * t + i]];
+      for (int k = 0; k < 3; ++k) v[i][k] = p[k];
     }
   }
 };
@@ -226,6 +256,8 @@ double touched_bound(const double a[3], const double b[3], const double c[3], do
     const double first = std::max(0.0, std::ceil(lo) - 1.0), last = std::min(res - 1.0, std::floor(hi));
     box *= std::max(1.0, last - first + 1.0);
   }
+  // The Steiner volume is at least 4/3 pi r^3 > 21.7: small boxes need no square roots.
+  if (box <= 21.0) return box;
   const double e0[3] = {b[0] - a[0], b[1] - a[1], b[2] - a[2]};
   const double e1[3] = {c[0] - a[0], c[1] - a[1], c[2] - a[2]};
   const double e2[3] = {c[0] - b[0], c[1] - b[1], c[2] - b[2]};
@@ -246,9 +278,10 @@ struct Estimate {
 };
 
 // Per-brick scratch sizes used by the estimate and by the code.
+/// Sums of one voxel: weighted by the parts' areas; when every part has zero area (the
+/// triangles only touch the voxel) the same fields hold unweighted sums (see process_brick).
 struct Slot {
   double w = 0, n[3] = {0, 0, 0}, col[3] = {0, 0, 0}, refl = 0, transp = 0, ior = 0;
-  double un[3] = {0, 0, 0}, ucol[3] = {0, 0, 0}, urefl = 0, utransp = 0, uior = 0;
   uint32_t count = 0;
   float best_area = -1.0f;
   uint32_t best_tri = 0;
@@ -259,8 +292,7 @@ struct Slot {
 struct PairRec {
   uint32_t slot;
   uint32_t tri;
-  float area;       ///< area of the triangle's part inside the voxel, in voxel-side^2 units
-  uint32_t vfirst;  ///< first vertex of its clipped polygon in Scratch::verts
+  uint32_t vfirst;  ///< first vertex of the triangle's part (clipped polygon) in Scratch::verts
   uint32_t vcount;
 };
 struct BinEntry {
@@ -269,8 +301,12 @@ struct BinEntry {
   bool operator<(const BinEntry& o) const { return brick != o.brick ? brick < o.brick : tri < o.tri; }
 };
 
-Estimate estimate(const VoxelizeInput& in, const Checked& c, const VoxelizeOptions& o) {
-  const Snapper snap(c.grid);
+/// Bytes of the lattice copy of the positions (allocated before the estimate can be made; it
+/// is as large as the positions themselves).
+double lattice_bytes(const VoxelizeInput& in) { return static_cast<double>(in.positions.size()) * sizeof(LatticePoint); }
+
+Estimate estimate(const VoxelizeInput& in, const std::vector<LatticePoint>& lat, const Checked& c,
+                  const VoxelizeOptions& o) {
   const double leaf_res = std::ldexp(1.0, o.depth);
   const double to_leaf = std::ldexp(1.0, o.depth - kLatticeBits);
   const double brick_res = std::ldexp(1.0, c.brick_level);
@@ -284,15 +320,13 @@ Estimate estimate(const VoxelizeInput& in, const Checked& c, const VoxelizeOptio
       tbb::blocked_range<size_t>(0, c.triangles, 4096), Sums{},
       [&](const tbb::blocked_range<size_t>& r, Sums acc) {
         for (size_t t = r.begin(); t < r.end(); ++t) {
+          const LatticeTri l(in, lat, t);
           double v[3][3], vb[3][3];
-          for (int k = 0; k < 3; ++k) {
-            int64_t l[3];
-            snap(in.positions[in.indices[3 * t + k]], l);
+          for (int k = 0; k < 3; ++k)
             for (int j = 0; j < 3; ++j) {
-              v[k][j] = static_cast<double>(l[j]) * to_leaf;
-              vb[k][j] = static_cast<double>(l[j]) * to_brick;
+              v[k][j] = static_cast<double>(l.v[k][j]) * to_leaf;
+              vb[k][j] = static_cast<double>(l.v[k][j]) * to_brick;
             }
-          }
           acc.pairs += touched_bound(v[0], v[1], v[2], leaf_res);
           acc.brick_pairs += touched_bound(vb[0], vb[1], vb[2], brick_res);
         }
@@ -307,10 +341,9 @@ Estimate estimate(const VoxelizeInput& in, const Checked& c, const VoxelizeOptio
   e.pair_bound = s.pairs;
   e.brick_pair_bound = s.brick_pairs;
   e.voxel_bound = std::min(s.pairs, std::ldexp(1.0, 3 * o.depth));
-  const double n = static_cast<double>(c.triangles);
   const double per_voxel = PerVoxelBytes::code + (o.attributes ? PerVoxelBytes::attrs : 0.0);
   const double brick_voxels = std::ldexp(1.0, 3 * c.brick_bits);
-  e.bytes = n * (sizeof(TriBox) + sizeof(Vec3) + 4 + 16)             // prepared triangles, order
+  e.bytes = lattice_bytes(in)                                       // snapped positions
             + 2.0 * e.brick_pair_bound * sizeof(BinEntry)           // bins (+ sort buffer)
             + 2.0 * e.voxel_bound * per_voxel                       // brick outputs + the set
             + c.threads * brick_voxels * (sizeof(uint32_t) + (o.attributes ? sizeof(Slot) : 4.0));
@@ -332,7 +365,7 @@ constexpr std::array<uint32_t, 32> make_spread5() {
 constexpr std::array<uint32_t, 32> kSpread5 = make_spread5();
 
 struct Counters {
-  uint64_t aabb = 0, plane = 0, sat = 0, vertex = 0, pairs = 0;
+  uint64_t aabb = 0, plane = 0, sat = 0, vertex = 0, clip = 0, pairs = 0;
 };
 
 /// Which tests run at inner levels and at leaves.
@@ -416,59 +449,113 @@ Tests make_tests(const VoxelStrategy& s, int depth) {
   return t;
 }
 
-/// A convex polygon (possibly degenerate) of at most 12 vertices; a triangle cut by the 6
-/// planes of a box has at most 9.
+/// A convex polygon (possibly degenerate). A triangle cut by the 6 planes of a box has at most
+/// 9 vertices; splits keep at most kPolyMax (more only arise from rounding, never in practice)
+/// and have room for two writes per input vertex, so they write without checks.
+constexpr int kPolyMax = 12;
 struct Poly {
   int n = 0;
-  double p[12][3];
+  double p[2 * kPolyMax + 2][3];
 };
-
-void copy_poly(const Poly& from, Poly& to) {
-  to.n = from.n;
-  for (int i = 0; i < from.n; ++i)
-    for (int k = 0; k < 3; ++k) to.p[i][k] = from.p[i][k];
-}
 
 /// Cuts \p in by the plane x[axis] = c into its closed halves: \p below (x <= c) and
 /// \p above (x >= c). Vertices on the plane go to both (a touching polygon stays non-empty).
-void split(const Poly& in, int axis, double c, Poly& below, Poly& above) {
-  below.n = 0;
-  above.n = 0;
-  auto put = [](Poly& q, const double* v) {
-    if (q.n < 12) {
-      for (int k = 0; k < 3; ++k) q.p[q.n][k] = v[k];
-      ++q.n;
-    }
-  };
-  for (int i = 0; i < in.n; ++i) {
-    const double* a = in.p[i];
-    const double* b = in.p[i + 1 == in.n ? 0 : i + 1];
-    const double da = a[axis] - c, db = b[axis] - c;
-    if (da <= 0.0) put(below, a);
-    if (da >= 0.0) put(above, a);
-    if ((da < 0.0 && db > 0.0) || (da > 0.0 && db < 0.0)) {
+inline void split(const Poly& in, int axis, double c, Poly& below, Poly& above) {
+  int nb = 0, na = 0;
+  const int n = in.n;
+  const double* a = in.p[n - 1];
+  double da = a[axis] - c;
+  for (int i = 0; i < n; ++i) {
+    const double* b = in.p[i];
+    const double db = b[axis] - c;
+    if ((da < 0.0 && db > 0.0) || (da > 0.0 && db < 0.0)) {  // the edge a -> b crosses the plane
       const double t = da / (da - db);
-      double q[3];
-      for (int k = 0; k < 3; ++k) q[k] = a[k] + (b[k] - a[k]) * t;
+      double q[3] = {a[0] + (b[0] - a[0]) * t, a[1] + (b[1] - a[1]) * t, a[2] + (b[2] - a[2]) * t};
       q[axis] = c;
-      put(below, q);
-      put(above, q);
+      below.p[nb][0] = q[0], below.p[nb][1] = q[1], below.p[nb][2] = q[2];
+      above.p[na][0] = q[0], above.p[na][1] = q[1], above.p[na][2] = q[2];
+      ++nb, ++na;
     }
+    below.p[nb][0] = b[0], below.p[nb][1] = b[1], below.p[nb][2] = b[2];
+    above.p[na][0] = b[0], above.p[na][1] = b[1], above.p[na][2] = b[2];
+    nb += db <= 0.0;
+    na += db >= 0.0;
+    a = b;
+    da = db;
+  }
+  below.n = std::min(nb, kPolyMax);
+  above.n = std::min(na, kPolyMax);
+}
+
+/// Cuts \p poly into the slabs [lo + c, lo + c + 1] along \p axis, c = 0 .. count - 1 (what lies
+/// outside [lo, lo + count] is dropped), calling piece(c, part) for each non-empty part.
+template <class Piece>
+inline void slabs(const Poly& poly, int axis, double lo, uint32_t count, Piece&& piece) {
+  double mn = poly.p[0][axis], mx = mn;
+  for (int i = 1; i < poly.n; ++i) {
+    mn = std::min(mn, poly.p[i][axis]);
+    mx = std::max(mx, poly.p[i][axis]);
+  }
+  Poly buf[3];  // rest and spare alternate; buf[2] takes each cut-off part
+  const Poly* rest = &poly;
+  int spare = 1;
+  if (mn < lo) {
+    split(poly, axis, lo, buf[2], buf[0]);
+    rest = &buf[0];
+  }
+  for (uint32_t c = 0; c < count && rest->n > 0; ++c) {
+    const double top = lo + static_cast<double>(c) + 1.0;
+    if (mx >= top && c + 1 < count) {
+      split(*rest, axis, top, buf[2], buf[spare]);
+      rest = &buf[spare];
+      spare = rest == &buf[0] ? 1 : 0;
+      if (buf[2].n > 0) piece(c, buf[2]);
+      continue;
+    }
+    if (mx > top) {  // the last slab of the range: drop what lies beyond it
+      split(*rest, axis, top, buf[2], buf[spare]);
+      if (buf[2].n > 0) piece(c, buf[2]);
+    } else {
+      piece(c, *rest);
+    }
+    break;
   }
 }
 
-/// Area of a planar polygon.
-double polygon_area(const std::array<double, 3>* p, int n) {
-  double s[3] = {0, 0, 0};
-  for (int i = 1; i + 1 < n; ++i) {
-    const double a[3] = {p[i][0] - p[0][0], p[i][1] - p[0][1], p[i][2] - p[0][2]};
-    const double b[3] = {p[i + 1][0] - p[0][0], p[i + 1][1] - p[0][1], p[i + 1][2] - p[0][2]};
-    s[0] += a[1] * b[2] - a[2] * b[1];
-    s[1] += a[2] * b[0] - a[0] * b[2];
-    s[2] += a[0] * b[1] - a[1] * b[0];
-  }
-  return 0.5 * std::sqrt(s[0] * s[0] + s[1] * s[1] + s[2] * s[2]);
+/// Twice the signed area of a polygon's projection onto the axes (u, v).
+inline double projected_area2(const Poly& q, int u, int v) {
+  const double u0 = q.p[0][u], v0 = q.p[0][v];
+  double s = 0.0;
+  for (int i = 1; i + 1 < q.n; ++i)
+    s += (q.p[i][u] - u0) * (q.p[i + 1][v] - v0) - (q.p[i + 1][u] - u0) * (q.p[i][v] - v0);
+  return s;
 }
+
+/// Unit geometric normal of input triangle \p t (from the unsnapped vertices), or 0 when degenerate.
+Vec3 unit_normal(const VoxelizeInput& in, size_t t) {
+  const Vec3& a = in.positions[in.indices[3 * t]];
+  const Vec3& b = in.positions[in.indices[3 * t + 1]];
+  const Vec3& c = in.positions[in.indices[3 * t + 2]];
+  const double e0[3] = {double(b.x) - a.x, double(b.y) - a.y, double(b.z) - a.z};
+  const double e1[3] = {double(c.x) - a.x, double(c.y) - a.y, double(c.z) - a.z};
+  const double n[3] = {e0[1] * e1[2] - e0[2] * e1[1], e0[2] * e1[0] - e0[0] * e1[2], e0[0] * e1[1] - e0[1] * e1[0]};
+  const double len = std::sqrt(n[0] * n[0] + n[1] * n[1] + n[2] * n[2]);
+  if (!(len > 0.0) || !std::isfinite(len)) return Vec3{};
+  return Vec3{static_cast<float>(n[0] / len), static_cast<float>(n[1] / len), static_cast<float>(n[2] / len)};
+}
+
+const TriangleAttributes& attributes_of(const VoxelizeInput& in, size_t t) {
+  static const TriangleAttributes kDefault{};
+  return in.attributes.empty() ? kDefault : in.attributes[t];
+}
+
+/// The part of the current triangle inside one leaf voxel of its range.
+struct Cell {
+  uint32_t first = 0;   ///< first vertex in Scratch::verts (relative to the voxel's minimum corner)
+  uint16_t count = 0;   ///< vertex count; 0 = no part
+  uint16_t inside = 0;  ///< 1: the part certainly meets the voxel's interior (exact tests can be skipped)
+  float area = 0.0f;    ///< area of the part, in voxel-side^2 units
+};
 
 /// Per-thread scratch of the brick stage.
 struct Scratch {
@@ -477,10 +564,8 @@ struct Scratch {
   std::vector<Slot> slots;
   std::vector<PairRec> pairs;
   std::vector<std::array<float, 3>> verts;
-  /// The current triangle's parts per leaf voxel of its bounding-box range in the brick:
-  /// cell -> (first vertex in pverts, vertex count); count 0 = no part.
-  std::vector<std::array<uint32_t, 2>> cells;
-  std::vector<std::array<double, 3>> pverts;
+  /// The current triangle's parts per leaf voxel of its bounding-box range in the brick.
+  std::vector<Cell> cells;
   Counters counters;
 };
 
@@ -491,19 +576,18 @@ struct BrickOut {
 
 struct Context {
   const VoxelizeInput& in;
+  const std::vector<LatticePoint>& lat;  ///< the positions on the lattice
   const VoxelizeOptions& opt;
   const Checked& chk;
   const Tests& tests;
-  const std::vector<TriBox>& tris;
-  const std::vector<Vec3>& normals;
-  const std::vector<uint32_t>& original;  ///< prepared (Morton-ordered) index -> input index
   int leaf_shift = 0;  ///< lattice units per leaf voxel = 2^leaf_shift
 };
 
-const TriangleAttributes& attrs_of(const Context& cx, uint32_t t) {
-  static const TriangleAttributes kDefault{};
-  return cx.in.attributes.empty() ? kDefault : cx.in.attributes[cx.original[t]];
-}
+/// How far inside its voxel (in voxel units) a clipped part's vertex average must lie for the
+/// part to certify that the triangle meets the voxel. Each computed vertex is within ~1e-13 of
+/// the triangle (a few interpolations of doubles below 2^6), and so is their average (the
+/// triangle is convex); a point of the triangle then lies strictly inside the voxel.
+constexpr double kInsideMargin = 1e-9;
 
 void process_brick(const Context& cx, uint64_t brick, const BinEntry* first, const BinEntry* last, Scratch& s,
                    BrickOut& out) {
@@ -516,6 +600,7 @@ void process_brick(const Context& cx, uint64_t brick, const BinEntry* first, con
   const int64_t S = int64_t{1} << F;
   const double inv_s = std::ldexp(1.0, -F);
   const bool attrs = cx.opt.attributes;
+  const bool clip_shortcut = attrs && cx.opt.strategy.clip_shortcut;
   const uint32_t res_max = (1u << cx.opt.depth) - 1u;
 
   s.touched.clear();
@@ -524,9 +609,16 @@ void process_brick(const Context& cx, uint64_t brick, const BinEntry* first, con
   s.verts.clear();
 
   uint32_t cur_tri = 0;
-  const TriBox* cur = nullptr;
+  Vec3 cur_normal;
+  const TriangleAttributes* cur_attrs = nullptr;
   uint32_t r0[3] = {0, 0, 0}, r1[3] = {0, 0, 0};  // the current triangle's leaf range in the brick
   uint32_t rn[3] = {0, 0, 0};
+  auto cell_of = [&](uint32_t X, uint32_t Y, uint32_t Z) -> const Cell& {
+    return s.cells[((Z - r0[2]) * rn[1] + (Y - r0[1])) * rn[0] + (X - r0[0])];
+  };
+  // Records the pair (voxel, current triangle): the voxel's slot, and with attributes the
+  // area-weighted sums (in triangle order, as each voxel meets a triangle at most once) and
+  // the part's vertices for the contours.
   auto accept = [&](uint32_t X, uint32_t Y, uint32_t Z) {
     ++s.counters.pairs;
     const uint32_t lcode = kSpread5[X & bmask] | kSpread5[Y & bmask] << 1 | kSpread5[Z & bmask] << 2;
@@ -538,76 +630,85 @@ void process_brick(const Context& cx, uint64_t brick, const BinEntry* first, con
       if (attrs) s.slots.emplace_back();
     }
     if (!attrs) return;
-    const auto& cell = s.cells[((Z - r0[2]) * rn[1] + (Y - r0[1])) * rn[0] + (X - r0[0])];
-    const std::array<double, 3>* piece = s.pverts.data() + cell[0];
-    const int n = static_cast<int>(cell[1]);
-    PairRec p;
-    p.slot = slot;
-    p.tri = cur_tri;
-    p.area = n >= 3 ? static_cast<float>(polygon_area(piece, n)) : 0.0f;
-    p.vfirst = static_cast<uint32_t>(s.verts.size());
-    p.vcount = static_cast<uint32_t>(n);
-    const double o[3] = {static_cast<double>(X - base[0]), static_cast<double>(Y - base[1]),
-                         static_cast<double>(Z - base[2])};
-    for (int i = 0; i < n; ++i)
-      s.verts.push_back({static_cast<float>(piece[i][0] - o[0]), static_cast<float>(piece[i][1] - o[1]),
-                         static_cast<float>(piece[i][2] - o[2])});
-    s.pairs.push_back(p);
+    const Cell& cell = cell_of(X, Y, Z);
+    const float area = cell.area;
+    const Vec3& nrm = cur_normal;
+    const TriangleAttributes& a = *cur_attrs;
+    Slot& sl = s.slots[slot];
+    const double w = area;
+    sl.w += w;
+    sl.n[0] += w * nrm.x;
+    sl.n[1] += w * nrm.y;
+    sl.n[2] += w * nrm.z;
+    sl.col[0] += w * a.colour.x;
+    sl.col[1] += w * a.colour.y;
+    sl.col[2] += w * a.colour.z;
+    sl.refl += w * a.reflectivity;
+    sl.transp += w * a.transparency;
+    sl.ior += w * a.ior;
+    ++sl.count;
+    if (area > sl.best_area) {
+      sl.best_area = area;
+      sl.best_tri = cur_tri;
+    }
+    s.pairs.push_back({slot, cur_tri, cell.first, cell.count});
   };
 
   // Cuts the triangle into its parts per leaf voxel of the range (slabs along x, then y, then
-  // z; each cut is one plane), in brick-local leaf units. Cost ~ the number of parts.
+  // z; each cut is one plane), in brick-local leaf units, and records per part its area (from
+  // the projection onto the normal's dominant axis), its vertices relative to the voxel and
+  // whether it certainly meets the voxel's interior. Cost ~ the number of parts.
   auto cut_parts = [&](const TriBox& t) {
-    s.cells.assign(static_cast<size_t>(rn[0]) * rn[1] * rn[2], {0u, 0u});
-    s.pverts.clear();
+    s.cells.assign(static_cast<size_t>(rn[0]) * rn[1] * rn[2], Cell{});
     Poly tri;
     tri.n = 3;
     for (int i = 0; i < 3; ++i)
       for (int k = 0; k < 3; ++k)
         tri.p[i][k] = static_cast<double>(t.v[i][k] - (static_cast<int64_t>(base[k]) << F)) * inv_s;
-    uint32_t idx[3] = {0, 0, 0};
-    auto slabs = [&](auto& self, const Poly& poly, int axis) -> void {
-      const double lo = static_cast<double>(r0[axis] - base[axis]);
-      const uint32_t count = rn[axis];
-      Poly rest, piece, tmp;
-      double mn = poly.p[0][axis], mx = mn;
-      for (int i = 1; i < poly.n; ++i) {
-        mn = std::min(mn, poly.p[i][axis]);
-        mx = std::max(mx, poly.p[i][axis]);
-      }
-      if (mn < lo)
-        split(poly, axis, lo, tmp, rest);
-      else
-        copy_poly(poly, rest);
-      for (uint32_t c = 0; c < count && rest.n > 0; ++c) {
-        const double top = lo + static_cast<double>(c) + 1.0;
-        if (mx >= top) {
-          split(rest, axis, top, piece, tmp);
-          copy_poly(tmp, rest);
-        } else {
-          copy_poly(rest, piece);
-          rest.n = 0;
-        }
-        if (piece.n == 0) continue;
-        idx[axis] = c;
-        if (axis < 2) {
-          self(self, piece, axis + 1);
-        } else {
-          auto& cell = s.cells[(static_cast<size_t>(idx[2]) * rn[1] + idx[1]) * rn[0] + idx[0]];
-          cell = {static_cast<uint32_t>(s.pverts.size()), static_cast<uint32_t>(piece.n)};
-          for (int i = 0; i < piece.n; ++i) s.pverts.push_back({piece.p[i][0], piece.p[i][1], piece.p[i][2]});
-        }
-      }
-    };
-    slabs(slabs, tri, 0);
+    const double n[3] = {static_cast<double>(t.n[0]), static_cast<double>(t.n[1]), static_cast<double>(t.n[2])};
+    const int w = (std::fabs(n[0]) >= std::fabs(n[1]) && std::fabs(n[0]) >= std::fabs(n[2]))
+                      ? 0
+                      : (std::fabs(n[1]) >= std::fabs(n[2]) ? 1 : 2);
+    const int pu = (w + 1) % 3, pv = (w + 2) % 3;
+    // area = projected area * |n| / |n_w| (0 for a degenerate triangle: its parts have no area)
+    const double area_scale =
+        n[w] != 0.0 ? 0.5 * std::sqrt(n[0] * n[0] + n[1] * n[1] + n[2] * n[2]) / std::fabs(n[w]) : 0.0;
+    double lo[3];
+    for (int k = 0; k < 3; ++k) lo[k] = static_cast<double>(r0[k] - base[k]);
+    slabs(tri, 0, lo[0], rn[0], [&](uint32_t ix, const Poly& px) {
+      slabs(px, 1, lo[1], rn[1], [&](uint32_t iy, const Poly& py) {
+        slabs(py, 2, lo[2], rn[2], [&](uint32_t iz, const Poly& q) {
+          Cell& cell = s.cells[(static_cast<size_t>(iz) * rn[1] + iy) * rn[0] + ix];
+          const int m = q.n;
+          cell.first = static_cast<uint32_t>(s.verts.size());
+          cell.count = static_cast<uint16_t>(m);
+          cell.area = m >= 3 ? static_cast<float>(std::fabs(projected_area2(q, pu, pv)) * area_scale) : 0.0f;
+          // Vertices relative to the voxel's minimum corner, and their average for the
+          // certificate that the part meets the voxel's interior.
+          const double o[3] = {lo[0] + ix, lo[1] + iy, lo[2] + iz};
+          double sum[3] = {0, 0, 0};
+          for (int i = 0; i < m; ++i) {
+            const double v[3] = {q.p[i][0] - o[0], q.p[i][1] - o[1], q.p[i][2] - o[2]};
+            s.verts.push_back({static_cast<float>(v[0]), static_cast<float>(v[1]), static_cast<float>(v[2])});
+            sum[0] += v[0], sum[1] += v[1], sum[2] += v[2];
+          }
+          const double lo_sum = kInsideMargin * m, hi_sum = (1.0 - kInsideMargin) * m;
+          cell.inside = sum[0] > lo_sum && sum[0] < hi_sum && sum[1] > lo_sum && sum[1] < hi_sum &&
+                        sum[2] > lo_sum && sum[2] < hi_sum;
+        });
+      });
+    });
   };
 
   const bool octree = cx.opt.strategy.traversal == VoxelTraversal::Octree;
   const bool plane_cut = cx.tests.plane_leaf || cx.tests.sat_leaf;
   for (const BinEntry* e = first; e != last; ++e) {
     cur_tri = e->tri;
-    cur = &cx.tris[e->tri];
-    const TriBox& t = *cur;
+    TriBox t;
+    {
+      const LatticeTri l(cx.in, cx.lat, cur_tri);
+      voxel::prepare(t, l.v[0], l.v[1], l.v[2]);
+    }
     // The leaf voxels of the triangle's bounding box inside this brick. Voxel x (lattice
     // [x S, (x+1) S]) meets [lo, hi] iff ceil(lo / S) - 1 <= x <= floor(hi / S).
     bool empty = false;
@@ -622,13 +723,22 @@ void process_brick(const Context& cx, uint64_t brick, const BinEntry* first, con
       rn[k] = static_cast<uint32_t>(hi - lo + 1);
     }
     if (empty) continue;
-    if (attrs) cut_parts(t);
+    if (attrs) {
+      cur_normal = unit_normal(cx.in, cur_tri);
+      cur_attrs = &attributes_of(cx.in, cur_tri);
+      cut_parts(t);
+    }
     if (octree) {
       cx.tests.descend(t, cx.chk.brick_level, bx, by, bz, cx.opt.depth, s.counters, accept);
       continue;
     }
     auto try_voxel = [&](uint32_t x, uint32_t y, uint32_t z) {
       ++s.counters.aabb;
+      if (clip_shortcut && cell_of(x, y, z).inside) {
+        ++s.counters.clip;
+        accept(x, y, z);
+        return;
+      }
       const LatticeBox box{{static_cast<int64_t>(x) << F, static_cast<int64_t>(y) << F, static_cast<int64_t>(z) << F}, S};
       if (cx.tests.pass(t, box, true, s.counters)) accept(x, y, z);
     };
@@ -639,25 +749,24 @@ void process_brick(const Context& cx, uint64_t brick, const BinEntry* first, con
       continue;
     }
     // Columns along the normal's dominant axis w: only the voxels near the plane's w-range
-    // over the column are tried (the exact plane test in pass() still decides).
+    // over the column are tried (the exact plane test in pass() still decides, so the range
+    // only needs to be a superset: doubles with a slack of 1e-6 voxel).
     const int w = (std::abs(t.n[0]) >= std::abs(t.n[1]) && std::abs(t.n[0]) >= std::abs(t.n[2]))
                       ? 0
                       : (std::abs(t.n[1]) >= std::abs(t.n[2]) ? 1 : 2);
     const int u = (w + 1) % 3, v = (w + 2) % 3;
     const int64_t sg = t.n[w] > 0 ? 1 : -1;
-    const int64_t nu = sg * t.n[u], nv = sg * t.n[v];
-    const __int128 dd = sg * t.d;
-    const int64_t pos = (nu > 0 ? nu : 0) + (nv > 0 ? nv : 0), neg = (nu < 0 ? nu : 0) + (nv < 0 ? nv : 0);
-    const double denom = static_cast<double>(sg * t.n[w]) * static_cast<double>(S);
+    const double nw = static_cast<double>(sg * t.n[w]);
+    // The plane in leaf units: k_w = (D - nu k_u - nv k_v) / nw over a voxel column.
+    const double fu = static_cast<double>(sg * t.n[u]) / nw, fv = static_cast<double>(sg * t.n[v]) / nw;
+    const double fd = static_cast<double>(static_cast<__int128>(sg) * t.d) / (nw * static_cast<double>(S));
+    const double fpos = (fu > 0 ? fu : 0) + (fv > 0 ? fv : 0), fneg = (fu < 0 ? fu : 0) + (fv < 0 ? fv : 0);
     uint32_t q[3];
     for (uint32_t cv = r0[v]; cv <= r1[v]; ++cv)
       for (uint32_t cu = r0[u]; cu <= r1[u]; ++cu) {
-        const __int128 a = static_cast<__int128>(nu) * (static_cast<int64_t>(cu) << F) +
-                           static_cast<__int128>(nv) * (static_cast<int64_t>(cv) << F);
-        const __int128 gmin = dd - (a + static_cast<__int128>(pos) * S);
-        const __int128 gmax = dd - (a + static_cast<__int128>(neg) * S);
-        const double kmin = std::ceil(static_cast<double>(gmin) / denom - 1e-6) - 1.0;
-        const double kmax = std::floor(static_cast<double>(gmax) / denom + 1e-6);
+        const double a = fu * cu + fv * cv;
+        const double kmin = std::ceil(fd - (a + fpos) - 1e-6) - 1.0;
+        const double kmax = std::floor(fd - (a + fneg) + 1e-6);
         const double k0 = std::max(kmin, static_cast<double>(r0[w]));
         const double k1 = std::min(kmax, static_cast<double>(r1[w]));
         if (k0 > k1) continue;
@@ -680,47 +789,34 @@ void process_brick(const Context& cx, uint64_t brick, const BinEntry* first, con
   for (size_t i = 0; i < nv; ++i) out.codes[i] = high | sorted[i];
 
   if (attrs) {
-    // Weighted (by clipped area) and unweighted sums, in pair order = triangle order.
+    // Voxels the triangles only touch (every part has zero area): unweighted sums instead, in
+    // the same (triangle) order.
     for (const PairRec& p : s.pairs) {
       Slot& sl = s.slots[p.slot];
-      const Vec3& nrm = cx.normals[p.tri];
-      const TriangleAttributes& a = attrs_of(cx, p.tri);
-      const double w = p.area;
-      sl.w += w;
-      sl.n[0] += w * nrm.x;
-      sl.n[1] += w * nrm.y;
-      sl.n[2] += w * nrm.z;
-      sl.col[0] += w * a.colour.x;
-      sl.col[1] += w * a.colour.y;
-      sl.col[2] += w * a.colour.z;
-      sl.refl += w * a.reflectivity;
-      sl.transp += w * a.transparency;
-      sl.ior += w * a.ior;
-      sl.un[0] += nrm.x;
-      sl.un[1] += nrm.y;
-      sl.un[2] += nrm.z;
-      sl.ucol[0] += a.colour.x;
-      sl.ucol[1] += a.colour.y;
-      sl.ucol[2] += a.colour.z;
-      sl.urefl += a.reflectivity;
-      sl.utransp += a.transparency;
-      sl.uior += a.ior;
-      ++sl.count;
-      if (p.area > sl.best_area) {
-        sl.best_area = p.area;
-        sl.best_tri = p.tri;
-      }
+      if (sl.w > 0.0) continue;
+      const Vec3 nrm = unit_normal(cx.in, p.tri);
+      const TriangleAttributes& a = attributes_of(cx.in, p.tri);
+      sl.n[0] += nrm.x;
+      sl.n[1] += nrm.y;
+      sl.n[2] += nrm.z;
+      sl.col[0] += a.colour.x;
+      sl.col[1] += a.colour.y;
+      sl.col[2] += a.colour.z;
+      sl.refl += a.reflectivity;
+      sl.transp += a.transparency;
+      sl.ior += a.ior;
     }
     for (Slot& sl : s.slots) {
       const bool weighted = sl.w > 0.0;
-      const double* nn = weighted ? sl.n : sl.un;
+      const double* nn = sl.n;
+
       const double len = std::sqrt(nn[0] * nn[0] + nn[1] * nn[1] + nn[2] * nn[2]);
       const double scale = weighted ? sl.w : static_cast<double>(sl.count);
       double nv3[3] = {0, 0, 1};
       if (len > 1e-9 * scale) {
         for (int k = 0; k < 3; ++k) nv3[k] = nn[k] / len;
       } else {  // normals cancel (e.g. two sides of a thin wall): the largest triangle's
-        const Vec3& b = cx.normals[sl.best_tri];
+        const Vec3 b = unit_normal(cx.in, sl.best_tri);
         if (b != Vec3{}) nv3[0] = b.x, nv3[1] = b.y, nv3[2] = b.z;
       }
       for (int k = 0; k < 3; ++k) sl.normal[k] = static_cast<float>(nv3[k]);
@@ -745,13 +841,13 @@ void process_brick(const Context& cx, uint64_t brick, const BinEntry* first, con
       VoxelAttributes& a = out.attrs[i];
       const bool weighted = sl.w > 0.0;
       const double inv = 1.0 / (weighted ? sl.w : static_cast<double>(sl.count));
-      const double* col = weighted ? sl.col : sl.ucol;
+      const double* col = sl.col;
       a.normal = {sl.normal[0], sl.normal[1], sl.normal[2]};
       a.colour = {static_cast<float>(col[0] * inv), static_cast<float>(col[1] * inv), static_cast<float>(col[2] * inv)};
-      a.reflectivity = static_cast<float>((weighted ? sl.refl : sl.urefl) * inv);
-      a.transparency = static_cast<float>((weighted ? sl.transp : sl.utransp) * inv);
-      a.ior = static_cast<float>((weighted ? sl.ior : sl.uior) * inv);
-      a.material = attrs_of(cx, sl.best_tri).material;
+      a.reflectivity = static_cast<float>(sl.refl * inv);
+      a.transparency = static_cast<float>(sl.transp * inv);
+      a.ior = static_cast<float>(sl.ior * inv);
+      a.material = attributes_of(cx.in, sl.best_tri).material;
       // Contours in world units; widened by 1e-5 voxel for the rounding of clipping.
       const double half = 0.5 * (std::fabs(static_cast<double>(sl.normal[0])) + std::fabs(static_cast<double>(sl.normal[1])) +
                                  std::fabs(static_cast<double>(sl.normal[2])));
@@ -771,7 +867,9 @@ void process_brick(const Context& cx, uint64_t brick, const BinEntry* first, con
 
 uint64_t voxelize_memory_estimate(const VoxelizeInput& input, const VoxelizeOptions& options) {
   const Checked c = check(input, options);
-  const double b = estimate(input, c, options).bytes;
+  tbb::task_arena arena(c.threads);
+  double b = 0;
+  arena.execute([&] { b = estimate(input, snap_positions(input, c.grid), c, options).bytes; });
   return b >= 1.8e19 ? std::numeric_limits<uint64_t>::max() : static_cast<uint64_t>(b);
 }
 
@@ -781,95 +879,91 @@ VoxelSet voxelize(const VoxelizeInput& input, const VoxelizeOptions& options, Vo
   const Checked chk = check(input, options);
   st.threads = chk.threads;
   st.triangles = chk.triangles;
+  st.memory_limit = options.memory_limit == 0 ? default_voxelize_memory_limit() : options.memory_limit;
+  auto refuse = [&](double bytes, double pairs, double voxels) {
+    char buf[512];
+    std::snprintf(buf, sizeof buf,
+                  "voxelize: depth %d would need up to %.4g bytes (%s; upper bound for %.4g voxel-triangle pairs, "
+                  "%.4g voxels) which exceeds the memory limit of %" PRIu64
+                  " bytes (%s); lower the depth or raise the limit (--memory-limit)",
+                  options.depth, bytes, bytes_text(bytes).c_str(), pairs, voxels, st.memory_limit,
+                  bytes_text(static_cast<double>(st.memory_limit)).c_str());
+    throw Error(buf);
+  };
+  // The lattice copy of the positions comes first (the estimate needs it): check it alone.
+  if (lattice_bytes(input) > static_cast<double>(st.memory_limit)) refuse(lattice_bytes(input), 0, 0);
 
   tbb::task_arena arena(chk.threads);
   VoxelSet result;
   arena.execute([&] {
-    // 2. estimate and limit.
-    const Estimate est = estimate(input, chk, options);
+    // 2. snap, estimate and limit.
+    const std::vector<LatticePoint> lat = snap_positions(input, chk.grid);
+    const Estimate est = estimate(input, lat, chk, options);
     st.estimate_bytes = est.bytes >= 1.8e19 ? std::numeric_limits<uint64_t>::max() : static_cast<uint64_t>(est.bytes);
-    st.memory_limit = options.memory_limit == 0 ? default_voxelize_memory_limit() : options.memory_limit;
-    if (est.bytes > static_cast<double>(st.memory_limit)) {
-      char buf[512];
-      std::snprintf(buf, sizeof buf,
-                    "voxelize: depth %d would need up to %.4g bytes (%s; upper bound for %.4g voxel-triangle pairs, "
-                    "%.4g voxels) which exceeds the memory limit of %" PRIu64
-                    " bytes (%s); lower the depth or raise the limit (--memory-limit)",
-                    options.depth, est.bytes, bytes_text(est.bytes).c_str(), est.pair_bound, est.voxel_bound,
-                    st.memory_limit, bytes_text(static_cast<double>(st.memory_limit)).c_str());
-      throw Error(buf);
-    }
-
-    // 3. prepare: triangles in Morton order of their centroids (then by index), so a brick's
-    // triangles are close in memory; the order is fixed, so sums per voxel stay deterministic.
-    const Snapper snap(chk.grid);
-    std::vector<std::pair<uint64_t, uint32_t>> order(chk.triangles);
-    tbb::parallel_for(tbb::blocked_range<size_t>(0, chk.triangles, 4096), [&](const tbb::blocked_range<size_t>& r) {
-      for (size_t t = r.begin(); t < r.end(); ++t) {
-        int64_t l[3][3];
-        for (int i = 0; i < 3; ++i) snap(input.positions[input.indices[3 * t + i]], l[i]);
-        uint32_t c[3];
-        for (int k = 0; k < 3; ++k)
-          c[k] = static_cast<uint32_t>(std::min<int64_t>((l[0][k] + l[1][k] + l[2][k]) / 3 >> (kLatticeBits - kMaxVoxelDepth),
-                                                         (int64_t{1} << kMaxVoxelDepth) - 1));
-        order[t] = {morton_encode(c[0], c[1], c[2]), static_cast<uint32_t>(t)};
-      }
-    });
-    tbb::parallel_sort(order.begin(), order.end());
-    std::vector<TriBox> tris(chk.triangles);
-    std::vector<Vec3> normals(chk.triangles);
-    std::vector<uint32_t> original(chk.triangles);
-    const uint64_t degenerate = tbb::parallel_reduce(
-        tbb::blocked_range<size_t>(0, chk.triangles, 2048), uint64_t{0},
-        [&](const tbb::blocked_range<size_t>& r, uint64_t acc) {
-          for (size_t t = r.begin(); t < r.end(); ++t) {
-            const uint32_t src = order[t].second;
-            original[t] = src;
-            int64_t l[3][3];
-            const Vec3& a = input.positions[input.indices[3 * size_t{src}]];
-            const Vec3& b = input.positions[input.indices[3 * size_t{src} + 1]];
-            const Vec3& c = input.positions[input.indices[3 * size_t{src} + 2]];
-            snap(a, l[0]);
-            snap(b, l[1]);
-            snap(c, l[2]);
-            voxel::prepare(tris[t], l[0], l[1], l[2]);
-            if (tris[t].n[0] == 0 && tris[t].n[1] == 0 && tris[t].n[2] == 0) ++acc;
-            const double e0[3] = {double(b.x) - a.x, double(b.y) - a.y, double(b.z) - a.z};
-            const double e1[3] = {double(c.x) - a.x, double(c.y) - a.y, double(c.z) - a.z};
-            const double n[3] = {e0[1] * e1[2] - e0[2] * e1[1], e0[2] * e1[0] - e0[0] * e1[2],
-                                 e0[0] * e1[1] - e0[1] * e1[0]};
-            const double len = std::sqrt(n[0] * n[0] + n[1] * n[1] + n[2] * n[2]);
-            normals[t] = len > 0.0 && std::isfinite(len)
-                             ? Vec3{static_cast<float>(n[0] / len), static_cast<float>(n[1] / len),
-                                    static_cast<float>(n[2] / len)}
-                             : Vec3{};
-          }
-          return acc;
-        },
-        [](uint64_t x, uint64_t y) { return x + y; });
-    std::vector<std::pair<uint64_t, uint32_t>>().swap(order);
-    st.degenerate_triangles = degenerate;
+    if (est.bytes > static_cast<double>(st.memory_limit)) refuse(est.bytes, est.pair_bound, est.voxel_bound);
     st.prepare_ms = total.ms();
 
-    // 4. bin into bricks.
+    // 3-4. bin into bricks: a triangle inside one brick goes there without tests; larger ones
+    // descend the implicit octree to the brick level (or test the bricks of their range).
     Timer phase;
     const Tests tests = make_tests(options.strategy, options.depth);
+    const bool octree = options.strategy.traversal == VoxelTraversal::Octree;
+    const int brick_shift = kLatticeBits - chk.brick_level;
+    const int64_t brick_side = int64_t{1} << brick_shift;
+    const int64_t brick_max = (int64_t{1} << chk.brick_level) - 1;
     constexpr size_t kBlock = 1024;
     const size_t blocks = (chk.triangles + kBlock - 1) / kBlock;
     std::vector<std::vector<BinEntry>> block_bins(blocks);
-    tbb::enumerable_thread_specific<Counters> bin_counters;
+    struct BinCounters {
+      Counters c;
+      uint64_t degenerate = 0;
+    };
+    tbb::enumerable_thread_specific<BinCounters> bin_counters;
     tbb::parallel_for(size_t{0}, blocks, [&](size_t bi) {
-      Counters& c = bin_counters.local();
+      BinCounters& bc = bin_counters.local();
       std::vector<BinEntry>& out = block_bins[bi];
       const size_t t0 = bi * kBlock, t1 = std::min(chk.triangles, t0 + kBlock);
+      out.reserve(t1 - t0 + t1 / 8 - t0 / 8);
       for (size_t t = t0; t < t1; ++t) {
         const uint32_t tri = static_cast<uint32_t>(t);
+        const LatticeTri l(input, lat, t);
+        const int64_t e0[3] = {l.v[1][0] - l.v[0][0], l.v[1][1] - l.v[0][1], l.v[1][2] - l.v[0][2]};
+        const int64_t e1[3] = {l.v[2][0] - l.v[1][0], l.v[2][1] - l.v[1][1], l.v[2][2] - l.v[1][2]};
+        if (e0[1] * e1[2] == e0[2] * e1[1] && e0[2] * e1[0] == e0[0] * e1[2] && e0[0] * e1[1] == e0[1] * e1[0])
+          ++bc.degenerate;
         if (chk.brick_level == 0) {
           out.push_back({0, tri});
           continue;
         }
+        // The bricks of the bounding box (closed boxes, as in process_brick).
+        int64_t b0[3], b1[3];
+        for (int k = 0; k < 3; ++k) {
+          const int64_t lo = std::min({l.v[0][k], l.v[1][k], l.v[2][k]});
+          const int64_t hi = std::max({l.v[0][k], l.v[1][k], l.v[2][k]});
+          b0[k] = std::max<int64_t>(((lo + brick_side - 1) >> brick_shift) - 1, 0);
+          b1[k] = std::min<int64_t>(hi >> brick_shift, brick_max);
+        }
+        if (!octree && b0[0] == b1[0] && b0[1] == b1[1] && b0[2] == b1[2]) {
+          out.push_back({morton_encode(static_cast<uint32_t>(b0[0]), static_cast<uint32_t>(b0[1]),
+                                       static_cast<uint32_t>(b0[2])),
+                         tri});
+          continue;
+        }
+        TriBox tb;
+        voxel::prepare(tb, l.v[0], l.v[1], l.v[2]);
         auto emit = [&](uint32_t x, uint32_t y, uint32_t z) { out.push_back({morton_encode(x, y, z), tri}); };
-        tests.descend(tris[t], 0, 0, 0, 0, chk.brick_level, c, emit);
+        if (octree) {
+          tests.descend(tb, 0, 0, 0, 0, chk.brick_level, bc.c, emit);
+          continue;
+        }
+        for (int64_t z = b0[2]; z <= b1[2]; ++z)
+          for (int64_t y = b0[1]; y <= b1[1]; ++y)
+            for (int64_t x = b0[0]; x <= b1[0]; ++x) {
+              ++bc.c.aabb;
+              const LatticeBox box{{x << brick_shift, y << brick_shift, z << brick_shift}, brick_side};
+              if (tests.pass(tb, box, false, bc.c))
+                emit(static_cast<uint32_t>(x), static_cast<uint32_t>(y), static_cast<uint32_t>(z));
+            }
       }
     });
     size_t nbins = 0;
@@ -889,11 +983,12 @@ VoxelSet voxelize(const VoxelizeInput& input, const VoxelizeOptions& options, Vo
     const size_t nbricks = brick_start.size();
     brick_start.push_back(nbins);
     st.bricks = nbricks;
+    for (const BinCounters& bc : bin_counters) st.degenerate_triangles += bc.degenerate;
     st.bin_ms = phase.ms();
 
     // 5. bricks.
     phase.reset();
-    const Context cx{input, options, chk, tests, tris, normals, original, kLatticeBits - options.depth};
+    const Context cx{input, lat, options, chk, tests, kLatticeBits - options.depth};
     const size_t local_voxels = size_t{1} << (3 * chk.brick_bits);
     tbb::enumerable_thread_specific<Scratch> scratch([&] {
       Scratch s;
@@ -927,17 +1022,18 @@ VoxelSet voxelize(const VoxelizeInput& input, const VoxelizeOptions& options, Vo
     });
     st.gather_ms = phase.ms();
 
-    for (const Counters& c : bin_counters) {
-      st.aabb_tests += c.aabb;
-      st.plane_tests += c.plane;
-      st.sat_tests += c.sat;
-      st.vertex_hits += c.vertex;
+    for (const BinCounters& bc : bin_counters) {
+      st.aabb_tests += bc.c.aabb;
+      st.plane_tests += bc.c.plane;
+      st.sat_tests += bc.c.sat;
+      st.vertex_hits += bc.c.vertex;
     }
     for (const Scratch& s : scratch) {
       st.aabb_tests += s.counters.aabb;
       st.plane_tests += s.counters.plane;
       st.sat_tests += s.counters.sat;
       st.vertex_hits += s.counters.vertex;
+      st.clip_accepts += s.counters.clip;
       st.pairs += s.counters.pairs;
     }
   });
