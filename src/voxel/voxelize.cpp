@@ -32,6 +32,7 @@
 
 #include <algorithm>
 #include <array>
+#include <bit>
 #include <cinttypes>
 #include <cmath>
 #include <cstdio>
@@ -561,9 +562,12 @@ struct Cell {
 struct Scratch {
   std::vector<uint32_t> slot_of;  ///< local Morton code -> slot (kNoSlot when untouched)
   std::vector<uint32_t> touched;  ///< local codes touched in this brick, first-touch order
+  std::vector<uint64_t> bits;     ///< one bit per local code (all clear between bricks)
+  std::vector<uint32_t> sorted;   ///< touched, in increasing order
   std::vector<Slot> slots;
   std::vector<PairRec> pairs;
-  std::vector<std::array<float, 3>> verts;
+  std::vector<std::array<float, 3>> verts;  ///< the first nverts are in use
+  size_t nverts = 0;
   /// The current triangle's parts per leaf voxel of its bounding-box range in the brick.
   std::vector<Cell> cells;
   Counters counters;
@@ -606,7 +610,7 @@ void process_brick(const Context& cx, uint64_t brick, const BinEntry* first, con
   s.touched.clear();
   s.slots.clear();
   s.pairs.clear();
-  s.verts.clear();
+  s.nverts = 0;
 
   uint32_t cur_tri = 0;
   Vec3 cur_normal;
@@ -680,7 +684,10 @@ void process_brick(const Context& cx, uint64_t brick, const BinEntry* first, con
         slabs(py, 2, lo[2], rn[2], [&](uint32_t iz, const Poly& q) {
           Cell& cell = s.cells[(static_cast<size_t>(iz) * rn[1] + iy) * rn[0] + ix];
           const int m = q.n;
-          cell.first = static_cast<uint32_t>(s.verts.size());
+          if (s.nverts + static_cast<size_t>(m) > s.verts.size()) s.verts.resize(std::max<size_t>(2 * s.verts.size(), 4096));
+          cell.first = static_cast<uint32_t>(s.nverts);
+          std::array<float, 3>* dst = s.verts.data() + s.nverts;
+          s.nverts += static_cast<size_t>(m);
           cell.count = static_cast<uint16_t>(m);
           cell.area = m >= 3 ? static_cast<float>(std::fabs(projected_area2(q, pu, pv)) * area_scale) : 0.0f;
           // Vertices relative to the voxel's minimum corner, and their average for the
@@ -689,7 +696,7 @@ void process_brick(const Context& cx, uint64_t brick, const BinEntry* first, con
           double sum[3] = {0, 0, 0};
           for (int i = 0; i < m; ++i) {
             const double v[3] = {q.p[i][0] - o[0], q.p[i][1] - o[1], q.p[i][2] - o[2]};
-            s.verts.push_back({static_cast<float>(v[0]), static_cast<float>(v[1]), static_cast<float>(v[2])});
+            dst[i] = {static_cast<float>(v[0]), static_cast<float>(v[1]), static_cast<float>(v[2])};
             sum[0] += v[0], sum[1] += v[1], sum[2] += v[2];
           }
           const double lo_sum = kInsideMargin * m, hi_sum = (1.0 - kInsideMargin) * m;
@@ -761,14 +768,19 @@ void process_brick(const Context& cx, uint64_t brick, const BinEntry* first, con
     const double fu = static_cast<double>(sg * t.n[u]) / nw, fv = static_cast<double>(sg * t.n[v]) / nw;
     const double fd = static_cast<double>(static_cast<__int128>(sg) * t.d) / (nw * static_cast<double>(S));
     const double fpos = (fu > 0 ? fu : 0) + (fv > 0 ? fv : 0), fneg = (fu < 0 ? fu : 0) + (fv < 0 ? fv : 0);
+    const double wlo = static_cast<double>(r0[w]) - 2.0, whi = static_cast<double>(r1[w]) + 2.0;
     uint32_t q[3];
     for (uint32_t cv = r0[v]; cv <= r1[v]; ++cv)
       for (uint32_t cu = r0[u]; cu <= r1[u]; ++cu) {
         const double a = fu * cu + fv * cv;
-        const double kmin = std::ceil(fd - (a + fpos) - 1e-6) - 1.0;
-        const double kmax = std::floor(fd - (a + fneg) + 1e-6);
-        const double k0 = std::max(kmin, static_cast<double>(r0[w]));
-        const double k1 = std::min(kmax, static_cast<double>(r1[w]));
+        // kmin = ceil(x) - 1 and kmax = floor(y), clamped to the range first (so the integer
+        // conversions below stay in range; truncation then rounds toward zero).
+        const double x = std::clamp(fd - (a + fpos) - 1e-6, wlo, whi), y = std::clamp(fd - (a + fneg) + 1e-6, wlo, whi);
+        int64_t kmin = static_cast<int64_t>(x), kmax = static_cast<int64_t>(y);
+        kmin += static_cast<double>(kmin) < x;  // ceil
+        kmin -= 1;
+        kmax -= static_cast<double>(kmax) > y;  // floor
+        const int64_t k0 = std::max<int64_t>(kmin, r0[w]), k1 = std::min<int64_t>(kmax, r1[w]);
         if (k0 > k1) continue;
         q[u] = cu;
         q[v] = cv;
@@ -779,11 +791,18 @@ void process_brick(const Context& cx, uint64_t brick, const BinEntry* first, con
       }
   }
 
-  // Output in Morton order.
+  // Output in Morton order: the touched local codes, read back sorted from a bitmap.
   std::vector<uint32_t>& order = s.touched;
   const size_t nv = order.size();
-  std::vector<uint32_t> sorted(order);
-  std::sort(sorted.begin(), sorted.end());
+  for (const uint32_t code : order) s.bits[code >> 6] |= uint64_t{1} << (code & 63u);
+  std::vector<uint32_t>& sorted = s.sorted;
+  sorted.clear();
+  const size_t words = ((size_t{1} << (3 * bb)) + 63) >> 6;
+  for (size_t wi = 0; wi < words; ++wi) {
+    for (uint64_t word = s.bits[wi]; word != 0; word &= word - 1)
+      sorted.push_back(static_cast<uint32_t>(wi << 6) | static_cast<uint32_t>(std::countr_zero(word)));
+    s.bits[wi] = 0;
+  }
   const uint64_t high = brick << (3 * bb);
   out.codes.resize(nv);
   for (size_t i = 0; i < nv; ++i) out.codes[i] = high | sorted[i];
@@ -993,6 +1012,7 @@ VoxelSet voxelize(const VoxelizeInput& input, const VoxelizeOptions& options, Vo
     tbb::enumerable_thread_specific<Scratch> scratch([&] {
       Scratch s;
       s.slot_of.assign(local_voxels, kNoSlot);
+      s.bits.assign((local_voxels + 63) / 64, 0);
       return s;
     });
     std::vector<BrickOut> outs(nbricks);
