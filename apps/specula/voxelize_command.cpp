@@ -318,7 +318,7 @@ int voxelize(const VoxelizeCommandOptions& o) {
     VoxelizeStats s;
     SvoInfo i;
     set = voxelize(l.input(), v, &s);
-    if (v.attributes) svo = SparseVoxelOctree::build(set, {}, &i);
+    if (v.attributes) svo = SparseVoxelOctree::build(std::move(set), {}, &i);  // takes the attributes; codes stay
     if (s.ms + i.build_ms < best) {
       best = s.ms + i.build_ms;
       st = s;

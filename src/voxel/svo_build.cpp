@@ -91,13 +91,32 @@ VoxelAttributes average_children(const VoxelAttributes* const* attrs, const uint
 }  // namespace
 
 SparseVoxelOctree SparseVoxelOctree::build(const VoxelSet& set, const VoxelTracerOptions& options, SvoInfo* info) {
+  return build_from(set, nullptr, options, info, Timer());
+}
+
+SparseVoxelOctree SparseVoxelOctree::build(VoxelSet&& set, const VoxelTracerOptions& options, SvoInfo* info) {
   const Timer timer;
-  voxel::validate_set(set, "svo");
+  std::vector<VoxelAttributes> attrs;
+  if (!set.attrs.empty()) {
+    voxel::validate_set(set, "svo");  // with its attributes, before they move
+    attrs.swap(set.attrs);
+  }
+  return build_from(set, attrs.empty() ? nullptr : &attrs, options, info, timer);
+}
+
+SparseVoxelOctree SparseVoxelOctree::build_from(const VoxelSet& set, std::vector<VoxelAttributes>* steal,
+                                                const VoxelTracerOptions& options, SvoInfo* info,
+                                                const Timer& timer) {
   SparseVoxelOctree svo;
+  if (steal) {  // validated by the caller, attributes included
+    svo.leaf_attrs_ = std::move(*steal);
+  } else {
+    voxel::validate_set(set, "svo");
+    svo.leaf_attrs_ = voxel::attributes_or_default(set);
+  }
   svo.grid_ = set.grid;
   svo.mode_ = options.mode;
   svo.set_lod(options.lod);
-  svo.leaf_attrs_ = voxel::attributes_or_default(set);
   const int depth = set.grid.depth;
   if (depth == 0) {
     svo.level_offsets_ = {0};
