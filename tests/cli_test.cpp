@@ -8,9 +8,11 @@
 #include <fstream>
 #include <sstream>
 #include <string>
+#include <vector>
 
 #include <nlohmann/json.hpp>
 
+#include "specula/image.h"
 #include "test_util.h"
 #include "cli_test_util.h"
 
@@ -89,9 +91,11 @@ TEST_F(Cli, MissingSceneIsAClearError) {
 }
 
 TEST_F(Cli, BadOptionsAreUsageErrors) {
-  EXPECT_NE(run_cli("render cornell --accel octree", dir_).exit_code, 0);
-  EXPECT_NE(run_cli("render cornell --width 0", dir_).exit_code, 0);
-  EXPECT_NE(run_cli("render cornell --width 100000", dir_).exit_code, 0);
+  EXPECT_EQ(run_cli("render cornell --accel octree", dir_).exit_code, 2);
+  EXPECT_EQ(run_cli("render cornell --width 0", dir_).exit_code, 2);
+  EXPECT_EQ(run_cli("render cornell --width 100000", dir_).exit_code, 2);
+  EXPECT_EQ(run_cli("render", dir_).exit_code, 2);
+  EXPECT_EQ(run_cli("render cornell --no-such-flag", dir_).exit_code, 2);
   const RunResult r = run_cli("render cornell -o '" + (dir_ / "x.bmp").string() + "'", dir_);
   EXPECT_EQ(r.exit_code, 1);
   EXPECT_NE(r.err.find(".png or .exr"), std::string::npos) << r.err;
@@ -235,4 +239,92 @@ TEST_F(Cli, BenchSvoPrintsSeedTablesContourCostAndPsnr) {
                            "water (16x12)", "depth 2:", "depth 3:"})
     EXPECT_NE(r.out.find(want), std::string::npos) << want << "\n" << r.out;
   EXPECT_NE(run_cli("bench svo --depths 0", dir_).exit_code, 0);
+}
+
+// ---------------------------------------------------------------------------------------------
+// Input limits (docs/SECURITY.md, "Limits"): each flag lowers a limit until a small input is
+// refused with a message naming the file, the value, the limit and the flag; the default or a
+// raised value accepts it; a malformed value is a usage error (exit 2) naming the flag.
+
+TEST_F(Cli, MaxElementsFlag) {
+  const fs::path obj = write("quad.obj", kQuadObj);  // 4 vertices, 6 indices
+  const RunResult low = run_cli("info '" + obj.string() + "' --max-elements 5", dir_);
+  EXPECT_EQ(low.exit_code, 1);
+  EXPECT_NE(low.err.find("quad.obj: 6 triangle indices, over the limit of 5 (about 32 bytes of scene memory; "
+                         "--max-elements raises the limit)"),
+            std::string::npos)
+      << low.err;
+  EXPECT_EQ(run_cli("info '" + obj.string() + "' --max-elements 6", dir_).exit_code, 0);
+  EXPECT_EQ(run_cli("info '" + obj.string() + "' --max-elements 4294967280", dir_).exit_code, 0);
+  for (const char* bad : {"0", "-1", "1e9", "4294967281", "99999999999999999999999", "lots"}) {
+    const RunResult r = run_cli("info '" + obj.string() + "' --max-elements " + bad, dir_);
+    EXPECT_EQ(r.exit_code, 2) << bad;
+    EXPECT_NE(r.err.find("--max-elements"), std::string::npos) << r.err;
+    EXPECT_NE(r.err.find("4294967280"), std::string::npos) << r.err;
+  }
+}
+
+TEST_F(Cli, MaxFileSizeFlag) {
+  const fs::path obj = write("quad.obj", kQuadObj);
+  const std::string size = std::to_string(fs::file_size(obj));
+  const RunResult low = run_cli("info '" + obj.string() + "' --max-file-size 10", dir_);
+  EXPECT_EQ(low.exit_code, 1);
+  EXPECT_NE(low.err.find("quad.obj: file is " + size + " bytes, over the limit of 10 bytes (--max-file-size raises it)"),
+            std::string::npos)
+      << low.err;
+  EXPECT_EQ(run_cli("info '" + obj.string() + "' --max-file-size " + size, dir_).exit_code, 0);
+  EXPECT_EQ(run_cli("info '" + obj.string() + "' --max-file-size 1KiB", dir_).exit_code, 0);
+  EXPECT_EQ(run_cli("info '" + obj.string() + "' --max-file-size 64GiB", dir_).exit_code, 0);
+  // Ray files and .svo files, which the scene loaders do not read, get the same limit.
+  std::string ray_lines;
+  for (int i = 0; i < 10; ++i) ray_lines += "0.25 0.25 1 0 0 -1\n";
+  const fs::path rays = write("rays.txt", ray_lines);  // 190 bytes; the OBJ has 46
+  const RunResult t = run_cli("trace '" + obj.string() + "' --rays '" + rays.string() + "' --max-file-size 100", dir_);
+  EXPECT_EQ(t.exit_code, 1);
+  EXPECT_NE(t.err.find("rays.txt: file is"), std::string::npos) << t.err;
+  const fs::path svo = dir_ / "quad.svo";
+  ASSERT_EQ(run_cli("voxelize '" + obj.string() + "' --depth 3 -o '" + svo.string() + "'", dir_).exit_code, 0);
+  const RunResult s = run_cli("render '" + svo.string() + "' --width 8 --height 6 --max-file-size 100 -o '" +
+                                  (dir_ / "s.png").string() + "'",
+                              dir_);
+  EXPECT_EQ(s.exit_code, 1);
+  EXPECT_NE(s.err.find("quad.svo: file is"), std::string::npos) << s.err;
+  EXPECT_NE(s.err.find("--max-file-size"), std::string::npos) << s.err;
+  EXPECT_FALSE(fs::exists(dir_ / "s.png"));
+  for (const char* bad : {"0", "-5", "8XB", "1e9", "GiB", "99999999999999999999T"}) {
+    const RunResult r = run_cli("info '" + obj.string() + "' --max-file-size " + bad, dir_);
+    EXPECT_EQ(r.exit_code, 2) << bad;
+    EXPECT_NE(r.err.find("--max-file-size"), std::string::npos) << r.err;
+    EXPECT_NE(r.err.find("powers of 1024"), std::string::npos) << r.err;
+  }
+}
+
+TEST_F(Cli, MaxImageMemoryFlag) {
+  specula::write_png((dir_ / "sky.png").string(), 4, 2, std::vector<specula::Vec3>(8, specula::Vec3{0.2f, 0.4f, 0.8f}));
+  write("quad.obj", kQuadObj);
+  const fs::path json = write("sky.json", R"({"meshes": [{"file": "quad.obj"}], "sky": {"type": "image", "image": "sky.png"}})");
+  const RunResult low = run_cli("info '" + json.string() + "' --max-image-memory 100", dir_);
+  EXPECT_EQ(low.exit_code, 1);
+  EXPECT_NE(low.err.find("sky.png: 4x2 image needs about 128 bytes to decode, over the limit of 100 bytes "
+                         "(--max-image-memory raises it)"),
+            std::string::npos)
+      << low.err;
+  EXPECT_EQ(run_cli("info '" + json.string() + "' --max-image-memory 1k", dir_).exit_code, 0);
+  EXPECT_EQ(run_cli("info '" + json.string() + "'", dir_).exit_code, 0);
+  EXPECT_EQ(run_cli("info '" + json.string() + "' --max-image-memory plenty", dir_).exit_code, 2);
+}
+
+TEST_F(Cli, MaxGridMemoryFlag) {
+  const fs::path obj = write("quad.obj", kQuadObj);
+  const std::string base = "render '" + obj.string() + "' --accel grid --depth 6 --width 8 --height 6 -o '" +
+                           (dir_ / "g.png").string() + "'";
+  const RunResult low = run_cli(base + " --max-grid-memory 1KiB", dir_);  // depth 6: 32 KiB of bits
+  EXPECT_EQ(low.exit_code, 1);
+  EXPECT_NE(low.err.find("--accel grid --depth 6: the dense voxel bitmask needs 32 KiB, over the limit of 1 KiB "
+                         "(--max-grid-memory raises it"),
+            std::string::npos)
+      << low.err;
+  EXPECT_FALSE(fs::exists(dir_ / "g.png"));
+  EXPECT_EQ(run_cli(base + " --max-grid-memory 32KiB", dir_).exit_code, 0);
+  EXPECT_EQ(run_cli(base + " --max-grid-memory 1x", dir_).exit_code, 2);
 }

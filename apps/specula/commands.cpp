@@ -19,6 +19,7 @@
 #include "specula/error.h"
 #include "specula/image.h"
 #include "specula/svo.h"
+#include "specula/voxel_grid.h"
 #include "specula/timer.h"
 
 namespace specula::cli {
@@ -40,6 +41,14 @@ bool ends_with_svo(const std::string& spec) {
   const std::string ext = std::filesystem::path(spec).extension().string();
   return ext == ".svo" || ext == ".SVO";
 }
+
+/// Files the loaders do not read themselves (.svo octrees, ray files) get the same size limit.
+void check_input_size(const std::string& path, const InputLimits& limits) {
+  std::error_code ec;
+  const uintmax_t size = std::filesystem::file_size(path, ec);
+  if (!ec && size > limits.max_file_bytes)
+    throw file_error(path, file_size_refusal(size, limits));
+}
 }  // namespace
 
 PreparedScene prepare_scene(const std::string& spec, const LoadOptions& load, const std::string& accel,
@@ -48,6 +57,7 @@ PreparedScene prepare_scene(const std::string& spec, const LoadOptions& load, co
   if (ends_with_svo(spec)) {
     if (accel != "svo" && accel != "bvh")
       throw Error(spec + ": a .svo file is traced by its octree (--accel svo), not '" + accel + "'");
+    check_input_size(spec, load.limits);
     const Timer timer;
     VoxelTracerOptions t = voxel_options.tracer;
     t.threads = threads;
@@ -71,6 +81,11 @@ PreparedScene prepare_scene(const std::string& spec, const LoadOptions& load, co
     throw Error("--lod needs --accel svo: the voxel grid has no coarser levels");
   if (accel != "svo" && accel != "grid" && (voxel_options.tracer.lod > 0 || voxel_options.tracer.mode != VoxelHitMode::Cubes))
     throw Error("--lod and --voxel-mode apply to --accel svo|grid, not '" + accel + "'");
+  if (accel == "grid" && VoxelGridTracer::bitmask_bytes(voxel_options.depth) > voxel_options.tracer.max_grid_bytes)
+    throw Error("--accel grid --depth " + std::to_string(voxel_options.depth) + ": the dense voxel bitmask needs " +
+                format_bytes(VoxelGridTracer::bitmask_bytes(voxel_options.depth)) + ", over the limit of " +
+                format_bytes(voxel_options.tracer.max_grid_bytes, true) +
+                " (--max-grid-memory raises it; --accel svo stores only the occupied voxels)");
   if (accel == "svo" || accel == "grid") {
     SceneVoxelOptions v = voxel_options;
     v.kind = accel;
@@ -243,6 +258,7 @@ std::vector<Ray> read_rays(const std::string& path) {
 int trace(const TraceOptions& options) {
   double load_ms = 0;
   Scene scene = load_timed(options.scene, options.load, load_ms);
+  if (options.rays != "-") check_input_size(options.rays, options.load.limits);
   const std::vector<Ray> rays = read_rays(options.rays);
 
   const int threads = options.threads <= 0 ? tbb::info::default_concurrency() : options.threads;

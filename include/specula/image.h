@@ -8,6 +8,7 @@
 #include <string>
 #include <vector>
 
+#include "specula/load.h"  // InputLimits
 #include "specula/math.h"
 #include "specula/render.h"
 #include "specula/scene.h"
@@ -32,10 +33,13 @@ void write_image(const std::string& path, int width, int height, std::span<const
                  Tonemap tonemap = Tonemap::Clamp);
 
 /// Reads an image into linear RGB (EXR and .hdr are linear; 8-bit formats are sRGB-decoded).
-std::vector<Vec3> read_image(const std::string& path, int& width, int& height);
+/// Refuses files over limits.max_file_bytes and images whose decoding memory, estimated from
+/// the header before decoding, exceeds limits.max_image_bytes (the message gives the estimate).
+std::vector<Vec3> read_image(const std::string& path, int& width, int& height,
+                             const InputLimits& limits = {});
 
 /// Loads sky.image_path into sky.image (no-op unless sky.type == SkyType::Image).
-void load_sky_image(Sky& sky);
+void load_sky_image(Sky& sky, const InputLimits& limits = {});
 
 /// Writes each AOV of \p film next to \p base_path: "out.png" -> "out.depth.png" etc.
 /// (depth and normal as false colour PNG and linear EXR when the base is .exr, prim ids as
