@@ -1,13 +1,21 @@
 // End-to-end tests of the specula command-line tool: exit codes, messages, output files.
+#include <fcntl.h>
 #include <gtest/gtest.h>
+#include <signal.h>
+#include <spawn.h>
 #include <sys/wait.h>
+#include <unistd.h>
 
+#include <algorithm>
+#include <chrono>
+#include <csignal>
 #include <cstdio>
 #include <cstdlib>
 #include <filesystem>
 #include <fstream>
 #include <sstream>
 #include <string>
+#include <thread>
 #include <vector>
 
 #include <nlohmann/json.hpp>
@@ -327,4 +335,111 @@ TEST_F(Cli, MaxGridMemoryFlag) {
   EXPECT_FALSE(fs::exists(dir_ / "g.png"));
   EXPECT_EQ(run_cli(base + " --max-grid-memory 32KiB", dir_).exit_code, 0);
   EXPECT_EQ(run_cli(base + " --max-grid-memory 1x", dir_).exit_code, 2);
+}
+
+// ---------------------------------------------------------------------------------------------
+// Interrupted runs (Ctrl-C): the CLI stops at once, removes the temporary file of a write in
+// progress and exits with 128 + the signal; the old output stays byte for byte, no temporary
+// file remains.
+
+namespace {
+
+/// A CLI child started with posix_spawn (so the test can signal it), stdout and stderr going
+/// to files in \p dir, \p env added to the environment.
+struct Child {
+  pid_t pid = -1;
+  fs::path err_path;
+
+  Child(const std::vector<std::string>& args, const fs::path& dir, const std::vector<std::string>& env = {}) {
+    err_path = dir / "child.err";
+    std::vector<std::string> argv_s{SPECULA_CLI_PATH};
+    argv_s.insert(argv_s.end(), args.begin(), args.end());
+    std::vector<char*> argv;
+    for (std::string& a : argv_s) argv.push_back(a.data());
+    argv.push_back(nullptr);
+    std::vector<std::string> env_s = env;
+    for (char** e = environ; *e != nullptr; ++e) env_s.emplace_back(*e);
+    std::vector<char*> envp;
+    for (std::string& e : env_s) envp.push_back(e.data());
+    envp.push_back(nullptr);
+    posix_spawn_file_actions_t fa;
+    posix_spawn_file_actions_init(&fa);
+    posix_spawn_file_actions_addopen(&fa, 0, "/dev/null", O_RDONLY, 0);
+    posix_spawn_file_actions_addopen(&fa, 1, (dir / "child.out").c_str(), O_WRONLY | O_CREAT | O_TRUNC, 0644);
+    posix_spawn_file_actions_addopen(&fa, 2, err_path.c_str(), O_WRONLY | O_CREAT | O_TRUNC, 0644);
+    if (posix_spawn(&pid, argv[0], &fa, nullptr, argv.data(), envp.data()) != 0) pid = -1;
+    posix_spawn_file_actions_destroy(&fa);
+  }
+  /// Waits up to \p seconds; returns the wait status, or -1 after killing a child that hung.
+  int wait(double seconds) {
+    const auto end = std::chrono::steady_clock::now() + std::chrono::duration<double>(seconds);
+    int status = 0;
+    while (std::chrono::steady_clock::now() < end) {
+      if (waitpid(pid, &status, WNOHANG) == pid) return status;
+      std::this_thread::sleep_for(std::chrono::milliseconds(20));
+    }
+    kill(pid, SIGKILL);
+    waitpid(pid, &status, 0);
+    return -1;
+  }
+};
+
+/// Names in \p dir other than the child's stdout / stderr captures.
+std::vector<std::string> outputs_in(const fs::path& dir) {
+  std::vector<std::string> names;
+  for (const auto& e : fs::directory_iterator(dir)) {
+    const std::string n = e.path().filename().string();
+    if (n != "child.out" && n != "child.err") names.push_back(n);
+  }
+  std::sort(names.begin(), names.end());
+  return names;
+}
+
+bool has_temp_file(const fs::path& dir) {
+  for (const std::string& n : outputs_in(dir))
+    if (n.find(".tmp-") != std::string::npos) return true;
+  return false;
+}
+
+}  // namespace
+
+TEST_F(Cli, InterruptedRenderLeavesTheOldOutput) {
+  const std::string old_bytes = "the previous image, byte for byte\n";
+  const fs::path out = write("out.png", old_bytes);
+  for (const int sig : {SIGINT, SIGTERM}) {
+    // 4000x3000 takes over a minute on one core: the signal lands while rendering.
+    Child child({"render", "cornell", "--width", "4000", "--height", "3000", "--aov", "depth", "-o", out.string()}, dir_);
+    ASSERT_GT(child.pid, 0);
+    std::this_thread::sleep_for(std::chrono::milliseconds(1500));
+    ASSERT_EQ(kill(child.pid, sig), 0);
+    const int status = child.wait(60);
+    ASSERT_NE(status, -1) << "did not stop on signal " << sig;
+    ASSERT_TRUE(WIFEXITED(status)) << "status " << status;
+    EXPECT_EQ(WEXITSTATUS(status), 128 + sig);
+    const std::string err = slurp(child.err_path);
+    EXPECT_NE(err.find(sig == SIGINT ? "interrupted (SIGINT)" : "interrupted (SIGTERM)"), std::string::npos) << err;
+    EXPECT_EQ(slurp(out), old_bytes);
+    EXPECT_EQ(outputs_in(dir_), std::vector<std::string>{"out.png"});
+  }
+}
+
+TEST_F(Cli, InterruptedWriteRemovesItsTemporaryFile) {
+  // The test hook holds every atomic write between its complete temporary file and the rename:
+  // the signal lands while the temporary file exists.
+  const std::string old_bytes = "the previous image, byte for byte\n";
+  const fs::path out = write("out.png", old_bytes);
+  Child child({"render", "cornell", "--width", "64", "--height", "48", "-o", out.string()}, dir_,
+              {"SPECULA_TEST_WRITE_DELAY_MS=30000"});
+  ASSERT_GT(child.pid, 0);
+  const auto end = std::chrono::steady_clock::now() + std::chrono::seconds(60);
+  while (!has_temp_file(dir_) && std::chrono::steady_clock::now() < end)
+    std::this_thread::sleep_for(std::chrono::milliseconds(10));
+  ASSERT_TRUE(has_temp_file(dir_)) << "no temporary file appeared";
+  ASSERT_EQ(kill(child.pid, SIGINT), 0);
+  const int status = child.wait(30);
+  ASSERT_NE(status, -1) << "did not stop on SIGINT";
+  ASSERT_TRUE(WIFEXITED(status)) << "status " << status;
+  EXPECT_EQ(WEXITSTATUS(status), 130);
+  EXPECT_EQ(slurp(out), old_bytes);
+  EXPECT_EQ(outputs_in(dir_), std::vector<std::string>{"out.png"});
 }

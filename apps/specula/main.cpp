@@ -10,6 +10,8 @@
 //
 // Argument parsing is CLI11; every subcommand throws specula::Error for user errors, which
 // main prints as "specula: error: ..." with exit code 1 (2 for usage errors).
+#include <pthread.h>
+#include <signal.h>
 #include <unistd.h>
 
 #include <CLI/CLI.hpp>
@@ -18,14 +20,38 @@
 #include <filesystem>
 #include <iostream>
 #include <string>
+#include <thread>
 
 #include "commands.h"
 #include "specula/error.h"
+#include "specula/image.h"
 #include "specula/load.h"
 
 namespace {
 
 using namespace specula;
+
+/// Ctrl-C (SIGINT), SIGTERM and SIGHUP stop the program at once, wherever it is (loading,
+/// building, rendering, writing), and leave every output either as it was or complete: the
+/// signals are blocked in every thread but one, which waits for them, removes the temporary
+/// files of atomic writes in progress (stop_atomic_writes), says so and exits with status
+/// 128 + the signal number (130 for Ctrl-C). Call before any other thread exists.
+void stop_cleanly_on_signals() {
+  sigset_t set;
+  sigemptyset(&set);
+  for (int sig : {SIGINT, SIGTERM, SIGHUP}) sigaddset(&set, sig);
+  if (pthread_sigmask(SIG_BLOCK, &set, nullptr) != 0) return;  // keep the default actions
+  std::thread([set] {
+    int sig = 0;
+    while (sigwait(&set, &sig) != 0) {
+    }
+    stop_atomic_writes();
+    const char* name = sig == SIGINT ? "SIGINT" : sig == SIGTERM ? "SIGTERM" : "SIGHUP";
+    std::fprintf(stderr, "\nspecula: interrupted (%s): stopped; outputs are unchanged or complete\n", name);
+    std::fflush(stderr);
+    _exit(128 + sig);
+  }).detach();
+}
 
 constexpr const char* kSceneHelp =
     "a built-in scene (pool, glassbox, cornell, city = a ~600k-triangle town, city:N = a town of about N "
@@ -132,6 +158,7 @@ void add_integrator_options(CLI::App* app, std::string& accel, specula::RenderOp
 }  // namespace
 
 int main(int argc, char** argv) {
+  stop_cleanly_on_signals();
   CLI::App app{
       "specula: real-time CPU ray tracing of reflections and refractions.\n"
       "Renders scenes with a Whitted ray tracer over a binned-SAH BVH, traces ray files, and\n"

@@ -23,6 +23,14 @@ enum class Tonemap : uint8_t { Clamp, Reinhard };
 void write_file_atomic(const std::string& path, std::span<const uint8_t> bytes,
                        const std::string& protect = {});
 
+/// For a program that exits on a signal (Ctrl-C): removes the temporary file of every
+/// write_file_atomic in progress and makes every write_file_atomic from now on, and every one
+/// about to rename its temporary file, wait forever; the caller then exits (_exit). Each output
+/// is left either as it was or complete (a rename that already happened), never partial, and no
+/// temporary file remains. Not async-signal-safe: call it from a normal thread, e.g. one that
+/// waits for the signals with sigwait() (what the specula CLI does).
+void stop_atomic_writes();
+
 /// Writes linear RGB as 8-bit sRGB PNG (clamped or Reinhard-tonemapped first).
 void write_png(const std::string& path, int width, int height, std::span<const Vec3> linear_rgb,
                Tonemap tonemap = Tonemap::Clamp);
