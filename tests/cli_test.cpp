@@ -136,6 +136,61 @@ TEST_F(Cli, RenderRefusesToOverwriteItsInput) {
   EXPECT_EQ(slurp(png), kQuadObj);
 }
 
+TEST_F(Cli, OutputNeverOverwritesAnInputHoweverSpelled) {
+  const fs::path obj = write("quad.obj", kQuadObj);
+  fs::create_directory(dir_ / "sub");
+  fs::create_symlink(obj, dir_ / "link.png");
+  fs::create_hard_link(obj, dir_ / "hard.png");
+  fs::create_symlink(obj, dir_ / "aov.depth.png");
+  fs::create_symlink(obj, dir_ / "link.svo");
+  fs::create_hard_link(obj, dir_ / "hard.xyz");
+  const std::string d = dir_.string();
+  struct Case {
+    std::string args, refused;
+  };
+  const std::vector<Case> cases{
+      {"render '" + d + "/./quad.obj' -o '" + d + "/link.png'", d + "/link.png"},
+      {"render '" + d + "/sub/../quad.obj' -o '" + d + "/sub/../hard.png'", d + "/sub/../hard.png"},
+      {"render '" + d + "/quad.obj' --aov depth -o '" + d + "/aov.png'", d + "/aov.depth.png"},
+      {"voxelize '" + d + "/./quad.obj' --depth 3 -o '" + d + "/link.svo'", d + "/link.svo"},
+      {"voxelize '" + d + "/quad.obj' --depth 3 -o '" + d + "/sub/../hard.xyz'", d + "/sub/../hard.xyz"},
+  };
+  for (const Case& c : cases) {
+    const RunResult r = run_cli(c.args, dir_);
+    EXPECT_EQ(r.exit_code, 1) << c.args << "\n" << r.err;
+    EXPECT_NE(r.err.find(c.refused + ": refusing to overwrite the input"), std::string::npos) << c.args << "\n" << r.err;
+    EXPECT_EQ(slurp(obj), kQuadObj) << c.args;
+    EXPECT_TRUE(fs::is_symlink(dir_ / "link.png"));
+    EXPECT_TRUE(fs::is_symlink(dir_ / "link.svo"));
+  }
+  for (const auto& e : fs::directory_iterator(dir_))
+    EXPECT_EQ(e.path().filename().string().find(".tmp-"), std::string::npos) << e.path();
+}
+
+TEST_F(Cli, RenderNeverOverwritesTheSkyImage) {
+  specula::write_png((dir_ / "sky.png").string(), 4, 2, std::vector<specula::Vec3>(8, specula::Vec3{0.2f, 0.4f, 0.8f}));
+  const std::string sky = slurp(dir_ / "sky.png");
+  write("quad.obj", kQuadObj);
+  const fs::path json = write("scene.json", R"({"meshes": [{"file": "quad.obj"}], "sky": {"type": "image", "image": "sky.png"}})");
+  const std::string d = dir_.string();
+  for (const std::string& out : {d + "/sky.png", d + "/./sky.png", d + "/sub/../sky.png"}) {
+    fs::create_directories(dir_ / "sub");
+    const RunResult r = run_cli("render '" + json.string() + "' --width 8 --height 6 -o '" + out + "'", dir_);
+    EXPECT_EQ(r.exit_code, 1) << out << "\n" << r.err;
+    EXPECT_NE(r.err.find("refusing to overwrite the input file"), std::string::npos) << r.err;
+    EXPECT_EQ(slurp(dir_ / "sky.png"), sky) << out;
+  }
+  fs::rename(dir_ / "sky.png", dir_ / "x.depth.png");
+  write("scene.json", R"({"meshes": [{"file": "quad.obj"}], "sky": {"type": "image", "image": "x.depth.png"}})");
+  const RunResult aov = run_cli("render '" + json.string() + "' --width 8 --height 6 --aov depth -o '" + d + "/x.png'", dir_);
+  EXPECT_EQ(aov.exit_code, 1) << aov.err;
+  EXPECT_NE(aov.err.find("x.depth.png: refusing to overwrite the input file"), std::string::npos) << aov.err;
+  EXPECT_EQ(slurp(dir_ / "x.depth.png"), sky);
+  EXPECT_FALSE(fs::exists(dir_ / "x.png"));
+  // A different output is fine.
+  EXPECT_EQ(run_cli("render '" + json.string() + "' --width 8 --height 6 -o '" + d + "/y.png'", dir_).exit_code, 0);
+}
+
 TEST_F(Cli, InfoDescribesAMesh) {
   const fs::path obj = write("quad.obj", kQuadObj);
   const RunResult r = run_cli("info '" + obj.string() + "'", dir_);

@@ -158,19 +158,31 @@ bool same_file(const std::filesystem::path& a, const std::filesystem::path& b) {
          std::filesystem::equivalent(a, b, ec);
 }
 
+/// Refuses to write any of \p outputs over one of \p inputs, however either is spelled (./x,
+/// a/../x, a symlink or a hard link to the same file).
+void refuse_overwriting_inputs(const std::vector<std::string>& outputs, const std::vector<std::string>& inputs) {
+  for (const std::string& out : outputs)
+    for (const std::string& in : inputs)
+      if (!in.empty() && same_file(out, in))
+        throw Error(out + ": refusing to overwrite the input " + (in == inputs.front() ? "scene" : "file") + " " + in);
+}
+
 }  // namespace
 
 int render(const RenderOptions& options) {
   const std::string ext = std::filesystem::path(options.output).extension().string();
   if (ext != ".png" && ext != ".exr" && ext != ".PNG" && ext != ".EXR")
     throw Error(options.output + ": output must end in .png or .exr");
-  if (same_file(options.output, options.scene))
-    throw Error(options.output + ": refusing to overwrite the input scene");
+  // Every output (image and AOVs) against every input (the scene file, then its sky image).
+  std::vector<std::string> outputs{options.output};
+  for (Aov a : parse_aovs(options.aovs)) outputs.push_back(aov_path(options.output, a));
+  refuse_overwriting_inputs(outputs, {options.scene});
 
   PreparedScene prepared =
       prepare_scene(options.scene, options.load, options.accel, options.bvh, options.voxel, options.render.threads);
   const Scene& scene = prepared.scene;
   const auto& tracer = prepared.tracer;
+  if (scene.sky.type == SkyType::Image) refuse_overwriting_inputs(outputs, {options.scene, scene.sky.image_path});
   specula::RenderOptions ro = options.render;
   ro.aovs = parse_aovs(options.aovs);
 

@@ -54,4 +54,8 @@ void load_sky_image(Sky& sky, const InputLimits& limits = {});
 /// hashed colours, cost as a heat map). Returns the paths written.
 std::vector<std::string> write_aovs(const std::string& base_path, const Film& film);
 
+/// Where write_aovs puts \p aov for \p base_path: "out.png" -> "out.depth.png", "x.exr" ->
+/// "x.depth.exr" (so a caller can check every output path before rendering).
+std::string aov_path(const std::string& base_path, Aov aov);
+
 }  // namespace specula
