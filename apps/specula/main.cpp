@@ -157,8 +157,8 @@ void add_integrator_options(CLI::App* app, std::string& accel, specula::RenderOp
 
 }  // namespace
 
-int main(int argc, char** argv) {
-  stop_cleanly_on_signals();
+/// The whole program but the signal set-up; main() catches what building the options may throw.
+static int run(int argc, char** argv) {
   CLI::App app{
       "specula: real-time CPU ray tracing of reflections and refractions.\n"
       "Renders scenes with a Whitted ray tracer over a binned-SAH BVH, traces ray files, and\n"
@@ -318,4 +318,16 @@ int main(int argc, char** argv) {
     return 1;
   }
   return 0;
+}
+
+int main(int argc, char** argv) {
+  stop_cleanly_on_signals();
+  try {
+    return run(argc, argv);
+  } catch (const std::exception& e) {  // setting up the options allocates: nothing escapes main
+    std::fprintf(stderr, "specula: error: %s\n", e.what());
+  } catch (...) {
+    std::fprintf(stderr, "specula: error: unknown exception\n");
+  }
+  return 1;
 }

@@ -484,9 +484,9 @@ class GltfLoader {
   static Mat4 local_transform(const tinygltf::Node& n) {
     if (n.matrix.size() == 16) {
       Mat4 r;
-      for (int row = 0; row < 4; ++row)
-        for (int col = 0; col < 4; ++col)  // glTF matrices are column-major
-          r.m[static_cast<size_t>(row * 4 + col)] = static_cast<float>(n.matrix[static_cast<size_t>(col * 4 + row)]);
+      for (size_t row = 0; row < 4; ++row)
+        for (size_t col = 0; col < 4; ++col)  // glTF matrices are column-major
+          r.m[row * 4 + col] = static_cast<float>(n.matrix[col * 4 + row]);
       return r;
     }
     Mat4 t, r, s;

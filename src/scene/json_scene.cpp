@@ -89,7 +89,7 @@ class JsonSceneLoader {
            std::to_string(byte) + ")";
   }
 
-  void check_keys(const json& obj, const std::string& where, std::set<std::string> allowed) const {
+  void check_keys(const json& obj, const std::string& where, const std::set<std::string>& allowed) const {
     for (const auto& [key, value] : obj.items()) {
       (void)value;
       if (!allowed.count(key))
