@@ -10,12 +10,23 @@
 #   scripts/fuzz.sh [SECONDS_PER_TARGET] [TARGET...]     e.g. scripts/fuzz.sh 3600 fuzz_ply
 # Environment: SPECULA_JOBS (build jobs, default: nproc), SPECULA_FUZZ_KEEP=1 keeps the scratch
 # folder (grown corpora, logs) and prints its path.
+#
+# Reproducible: every target runs as one process with libFuzzer's -seed=SPECULA_FUZZ_SEED
+# (default 1; 0 = a random seed, which the report prints), so the sequence of inputs it tries
+# depends only on the seed, the seed corpus and the code: a finding at execution K comes back in
+# any run that gets that far. SPECULA_FUZZ_RUNS=N also stops each target after N executions
+# (-runs=N), which makes the whole run, its coverage figures included, repeat exactly.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 root=$PWD
 secs=${1:-60}
 shift || true
 [[ "$secs" =~ ^[0-9]+$ ]] || { echo "usage: scripts/fuzz.sh [SECONDS_PER_TARGET] [TARGET...]" >&2; exit 2; }
+seed=${SPECULA_FUZZ_SEED:-1}
+runs=${SPECULA_FUZZ_RUNS:-}
+[[ "$seed" =~ ^[0-9]+$ ]] && ((seed < 4294967296)) ||
+  { echo "fuzz: SPECULA_FUZZ_SEED must be a number from 0 (random) to 4294967295" >&2; exit 2; }
+[[ -z "$runs" || "$runs" =~ ^[1-9][0-9]*$ ]] || { echo "fuzz: SPECULA_FUZZ_RUNS must be a positive number" >&2; exit 2; }
 
 scripts/setup.sh
 cmake --preset fuzz >/dev/null
@@ -60,7 +71,8 @@ dict_of() {
 
 failed=()
 found=0
-printf '\nfuzz: %s s per target: %s\n' "$secs" "${targets[*]}"
+printf '\nfuzz: %s s%s per target, seed %s: %s\n' "$secs" "${runs:+ or $runs executions}" \
+  "$([ "$seed" = 0 ] && echo "random (SPECULA_FUZZ_SEED=0)" || echo "$seed")" "${targets[*]}"
 for t in "${targets[@]}"; do
   [ -x "$bin/$t" ] || { echo "fuzz: no such target '$t' (see $bin/targets.txt)" >&2; exit 2; }
   work=$scratch/$t
@@ -68,8 +80,9 @@ for t in "${targets[@]}"; do
   cp -r "fuzz/corpus/$t/." "$work/corpus/"
   [ "$t" = fuzz_obj ] && obj_extracts "$work/corpus"
   seeds=$(find "$work/corpus" -type f | wc -l)
-  args=("$work/corpus" -max_total_time="$secs" -timeout=10 -rss_limit_mb=2048 -max_len=65536
+  args=("$work/corpus" -seed="$seed" -max_total_time="$secs" -timeout=10 -rss_limit_mb=2048 -max_len=65536
         -artifact_prefix="$work/artifacts/" -print_final_stats=1)
+  [ -n "$runs" ] && args+=(-runs="$runs")
   dict=$(dict_of "$t")
   [ -f "$dict" ] && args+=(-dict="$dict")
   rc=0
@@ -84,9 +97,10 @@ for t in "${targets[@]}"; do
   cov=$(sed -n 's/.* cov: \([0-9]*\).*/\1/p' <<< "$status")
   ft=$(sed -n 's/.* ft: \([0-9]*\).*/\1/p' <<< "$status")
   corp=$(sed -n 's/.* corp: \([0-9]*\).*/\1/p' <<< "$status")
+  used_seed=$(sed -n 's/^INFO: Seed: \([0-9]*\).*/\1/p' "$work/log" | head -1)
   crashes=$(find "$work/artifacts" -type f \( -name 'crash-*' -o -name 'leak-*' -o -name 'timeout-*' -o -name 'oom-*' \) | sort)
-  printf 'fuzz: %-16s %10s execs  %6s exec/s  cov %6s  ft %6s  corpus %4s -> %-4s  rss %5s MB  %s\n' \
-    "$t" "${execs:-?}" "${speed:-?}" "${cov:-?}" "${ft:-?}" "$seeds" "${corp:-?}" "${rss:-?}" \
+  printf 'fuzz: %-16s seed %-10s %10s execs  %6s exec/s  cov %6s  ft %6s  corpus %4s -> %-4s  rss %5s MB  %s\n' \
+    "$t" "${used_seed:-?}" "${execs:-?}" "${speed:-?}" "${cov:-?}" "${ft:-?}" "$seeds" "${corp:-?}" "${rss:-?}" \
     "$([ -z "$crashes" ] && [ $rc -eq 0 ] && echo ok || echo FAILED)"
   if [ -n "$crashes" ] || [ $rc -ne 0 ]; then
     failed+=("$t")
@@ -98,6 +112,7 @@ for t in "${targets[@]}"; do
       found=$((found + 1))
       echo "fuzz: $t: saved $dest/$(basename "$c")"
     done <<< "$crashes"
+    echo "fuzz: $t: to repeat this run: SPECULA_FUZZ_SEED=${used_seed:-$seed} SPECULA_FUZZ_RUNS=${execs:-N} scripts/fuzz.sh $secs $t"
     echo "---- $t: end of the log ($work/log)"
     grep -v -E '^#[0-9]+' "$work/log" | tail -n 60
     echo "----"

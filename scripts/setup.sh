@@ -5,7 +5,8 @@ PKGS=(build-essential cmake ninja-build pkg-config
       libtbb-dev libtinyobjloader-dev libtinygltf-dev libstb-dev libtinyexr-dev
       nlohmann-json3-dev libcli11-dev libgtest-dev libgmock-dev libbenchmark-dev
       libembree-dev assimp-testmodels
-      clang-14 libclang-rt-14-dev zlib1g-dev)  # fuzz preset: clang + libFuzzer runtime; zlib for tinyexr
+      clang-14 libclang-rt-14-dev zlib1g-dev   # fuzz preset: clang + libFuzzer runtime; zlib for tinyexr
+      clang-tidy-14)                           # scripts/tidy.sh
 missing=()
 for p in "${PKGS[@]}"; do
   dpkg-query -W -f='${Status}' "$p" 2>/dev/null | grep -q "install ok installed" || missing+=("$p")

@@ -1,16 +1,26 @@
 // End-to-end tests of the specula command-line tool: exit codes, messages, output files.
+#include <fcntl.h>
 #include <gtest/gtest.h>
+#include <signal.h>
+#include <spawn.h>
 #include <sys/wait.h>
+#include <unistd.h>
 
+#include <algorithm>
+#include <chrono>
+#include <csignal>
 #include <cstdio>
 #include <cstdlib>
 #include <filesystem>
 #include <fstream>
 #include <sstream>
 #include <string>
+#include <thread>
+#include <vector>
 
 #include <nlohmann/json.hpp>
 
+#include "specula/image.h"
 #include "test_util.h"
 #include "cli_test_util.h"
 
@@ -89,9 +99,11 @@ TEST_F(Cli, MissingSceneIsAClearError) {
 }
 
 TEST_F(Cli, BadOptionsAreUsageErrors) {
-  EXPECT_NE(run_cli("render cornell --accel octree", dir_).exit_code, 0);
-  EXPECT_NE(run_cli("render cornell --width 0", dir_).exit_code, 0);
-  EXPECT_NE(run_cli("render cornell --width 100000", dir_).exit_code, 0);
+  EXPECT_EQ(run_cli("render cornell --accel octree", dir_).exit_code, 2);
+  EXPECT_EQ(run_cli("render cornell --width 0", dir_).exit_code, 2);
+  EXPECT_EQ(run_cli("render cornell --width 100000", dir_).exit_code, 2);
+  EXPECT_EQ(run_cli("render", dir_).exit_code, 2);
+  EXPECT_EQ(run_cli("render cornell --no-such-flag", dir_).exit_code, 2);
   const RunResult r = run_cli("render cornell -o '" + (dir_ / "x.bmp").string() + "'", dir_);
   EXPECT_EQ(r.exit_code, 1);
   EXPECT_NE(r.err.find(".png or .exr"), std::string::npos) << r.err;
@@ -122,6 +134,61 @@ TEST_F(Cli, RenderRefusesToOverwriteItsInput) {
   const RunResult r = run_cli("render '" + png.string() + "' -o '" + png.string() + "'", dir_);
   EXPECT_EQ(r.exit_code, 1);
   EXPECT_EQ(slurp(png), kQuadObj);
+}
+
+TEST_F(Cli, OutputNeverOverwritesAnInputHoweverSpelled) {
+  const fs::path obj = write("quad.obj", kQuadObj);
+  fs::create_directory(dir_ / "sub");
+  fs::create_symlink(obj, dir_ / "link.png");
+  fs::create_hard_link(obj, dir_ / "hard.png");
+  fs::create_symlink(obj, dir_ / "aov.depth.png");
+  fs::create_symlink(obj, dir_ / "link.svo");
+  fs::create_hard_link(obj, dir_ / "hard.xyz");
+  const std::string d = dir_.string();
+  struct Case {
+    std::string args, refused;
+  };
+  const std::vector<Case> cases{
+      {"render '" + d + "/./quad.obj' -o '" + d + "/link.png'", d + "/link.png"},
+      {"render '" + d + "/sub/../quad.obj' -o '" + d + "/sub/../hard.png'", d + "/sub/../hard.png"},
+      {"render '" + d + "/quad.obj' --aov depth -o '" + d + "/aov.png'", d + "/aov.depth.png"},
+      {"voxelize '" + d + "/./quad.obj' --depth 3 -o '" + d + "/link.svo'", d + "/link.svo"},
+      {"voxelize '" + d + "/quad.obj' --depth 3 -o '" + d + "/sub/../hard.xyz'", d + "/sub/../hard.xyz"},
+  };
+  for (const Case& c : cases) {
+    const RunResult r = run_cli(c.args, dir_);
+    EXPECT_EQ(r.exit_code, 1) << c.args << "\n" << r.err;
+    EXPECT_NE(r.err.find(c.refused + ": refusing to overwrite the input"), std::string::npos) << c.args << "\n" << r.err;
+    EXPECT_EQ(slurp(obj), kQuadObj) << c.args;
+    EXPECT_TRUE(fs::is_symlink(dir_ / "link.png"));
+    EXPECT_TRUE(fs::is_symlink(dir_ / "link.svo"));
+  }
+  for (const auto& e : fs::directory_iterator(dir_))
+    EXPECT_EQ(e.path().filename().string().find(".tmp-"), std::string::npos) << e.path();
+}
+
+TEST_F(Cli, RenderNeverOverwritesTheSkyImage) {
+  specula::write_png((dir_ / "sky.png").string(), 4, 2, std::vector<specula::Vec3>(8, specula::Vec3{0.2f, 0.4f, 0.8f}));
+  const std::string sky = slurp(dir_ / "sky.png");
+  write("quad.obj", kQuadObj);
+  const fs::path json = write("scene.json", R"({"meshes": [{"file": "quad.obj"}], "sky": {"type": "image", "image": "sky.png"}})");
+  const std::string d = dir_.string();
+  for (const std::string& out : {d + "/sky.png", d + "/./sky.png", d + "/sub/../sky.png"}) {
+    fs::create_directories(dir_ / "sub");
+    const RunResult r = run_cli("render '" + json.string() + "' --width 8 --height 6 -o '" + out + "'", dir_);
+    EXPECT_EQ(r.exit_code, 1) << out << "\n" << r.err;
+    EXPECT_NE(r.err.find("refusing to overwrite the input file"), std::string::npos) << r.err;
+    EXPECT_EQ(slurp(dir_ / "sky.png"), sky) << out;
+  }
+  fs::rename(dir_ / "sky.png", dir_ / "x.depth.png");
+  write("scene.json", R"({"meshes": [{"file": "quad.obj"}], "sky": {"type": "image", "image": "x.depth.png"}})");
+  const RunResult aov = run_cli("render '" + json.string() + "' --width 8 --height 6 --aov depth -o '" + d + "/x.png'", dir_);
+  EXPECT_EQ(aov.exit_code, 1) << aov.err;
+  EXPECT_NE(aov.err.find("x.depth.png: refusing to overwrite the input file"), std::string::npos) << aov.err;
+  EXPECT_EQ(slurp(dir_ / "x.depth.png"), sky);
+  EXPECT_FALSE(fs::exists(dir_ / "x.png"));
+  // A different output is fine.
+  EXPECT_EQ(run_cli("render '" + json.string() + "' --width 8 --height 6 -o '" + d + "/y.png'", dir_).exit_code, 0);
 }
 
 TEST_F(Cli, InfoDescribesAMesh) {
@@ -235,4 +302,199 @@ TEST_F(Cli, BenchSvoPrintsSeedTablesContourCostAndPsnr) {
                            "water (16x12)", "depth 2:", "depth 3:"})
     EXPECT_NE(r.out.find(want), std::string::npos) << want << "\n" << r.out;
   EXPECT_NE(run_cli("bench svo --depths 0", dir_).exit_code, 0);
+}
+
+// ---------------------------------------------------------------------------------------------
+// Input limits (docs/SECURITY.md, "Limits"): each flag lowers a limit until a small input is
+// refused with a message naming the file, the value, the limit and the flag; the default or a
+// raised value accepts it; a malformed value is a usage error (exit 2) naming the flag.
+
+TEST_F(Cli, MaxElementsFlag) {
+  const fs::path obj = write("quad.obj", kQuadObj);  // 4 vertices, 6 indices
+  const RunResult low = run_cli("info '" + obj.string() + "' --max-elements 5", dir_);
+  EXPECT_EQ(low.exit_code, 1);
+  EXPECT_NE(low.err.find("quad.obj: 6 triangle indices, over the limit of 5 (about 32 bytes of scene memory; "
+                         "--max-elements raises the limit)"),
+            std::string::npos)
+      << low.err;
+  EXPECT_EQ(run_cli("info '" + obj.string() + "' --max-elements 6", dir_).exit_code, 0);
+  EXPECT_EQ(run_cli("info '" + obj.string() + "' --max-elements 4294967280", dir_).exit_code, 0);
+  for (const char* bad : {"0", "-1", "1e9", "4294967281", "99999999999999999999999", "lots"}) {
+    const RunResult r = run_cli("info '" + obj.string() + "' --max-elements " + bad, dir_);
+    EXPECT_EQ(r.exit_code, 2) << bad;
+    EXPECT_NE(r.err.find("--max-elements"), std::string::npos) << r.err;
+    EXPECT_NE(r.err.find("4294967280"), std::string::npos) << r.err;
+  }
+}
+
+TEST_F(Cli, MaxFileSizeFlag) {
+  const fs::path obj = write("quad.obj", kQuadObj);
+  const std::string size = std::to_string(fs::file_size(obj));
+  const RunResult low = run_cli("info '" + obj.string() + "' --max-file-size 10", dir_);
+  EXPECT_EQ(low.exit_code, 1);
+  EXPECT_NE(low.err.find("quad.obj: file is " + size + " bytes, over the limit of 10 bytes (--max-file-size raises it)"),
+            std::string::npos)
+      << low.err;
+  EXPECT_EQ(run_cli("info '" + obj.string() + "' --max-file-size " + size, dir_).exit_code, 0);
+  EXPECT_EQ(run_cli("info '" + obj.string() + "' --max-file-size 1KiB", dir_).exit_code, 0);
+  EXPECT_EQ(run_cli("info '" + obj.string() + "' --max-file-size 64GiB", dir_).exit_code, 0);
+  // Ray files and .svo files, which the scene loaders do not read, get the same limit.
+  std::string ray_lines;
+  for (int i = 0; i < 10; ++i) ray_lines += "0.25 0.25 1 0 0 -1\n";
+  const fs::path rays = write("rays.txt", ray_lines);  // 190 bytes; the OBJ has 46
+  const RunResult t = run_cli("trace '" + obj.string() + "' --rays '" + rays.string() + "' --max-file-size 100", dir_);
+  EXPECT_EQ(t.exit_code, 1);
+  EXPECT_NE(t.err.find("rays.txt: file is"), std::string::npos) << t.err;
+  const fs::path svo = dir_ / "quad.svo";
+  ASSERT_EQ(run_cli("voxelize '" + obj.string() + "' --depth 3 -o '" + svo.string() + "'", dir_).exit_code, 0);
+  const RunResult s = run_cli("render '" + svo.string() + "' --width 8 --height 6 --max-file-size 100 -o '" +
+                                  (dir_ / "s.png").string() + "'",
+                              dir_);
+  EXPECT_EQ(s.exit_code, 1);
+  EXPECT_NE(s.err.find("quad.svo: file is"), std::string::npos) << s.err;
+  EXPECT_NE(s.err.find("--max-file-size"), std::string::npos) << s.err;
+  EXPECT_FALSE(fs::exists(dir_ / "s.png"));
+  for (const char* bad : {"0", "-5", "8XB", "1e9", "GiB", "99999999999999999999T"}) {
+    const RunResult r = run_cli("info '" + obj.string() + "' --max-file-size " + bad, dir_);
+    EXPECT_EQ(r.exit_code, 2) << bad;
+    EXPECT_NE(r.err.find("--max-file-size"), std::string::npos) << r.err;
+    EXPECT_NE(r.err.find("powers of 1024"), std::string::npos) << r.err;
+  }
+}
+
+TEST_F(Cli, MaxImageMemoryFlag) {
+  specula::write_png((dir_ / "sky.png").string(), 4, 2, std::vector<specula::Vec3>(8, specula::Vec3{0.2f, 0.4f, 0.8f}));
+  write("quad.obj", kQuadObj);
+  const fs::path json = write("sky.json", R"({"meshes": [{"file": "quad.obj"}], "sky": {"type": "image", "image": "sky.png"}})");
+  const RunResult low = run_cli("info '" + json.string() + "' --max-image-memory 100", dir_);
+  EXPECT_EQ(low.exit_code, 1);
+  EXPECT_NE(low.err.find("sky.png: 4x2 image needs about 128 bytes to decode, over the limit of 100 bytes "
+                         "(--max-image-memory raises it)"),
+            std::string::npos)
+      << low.err;
+  EXPECT_EQ(run_cli("info '" + json.string() + "' --max-image-memory 1k", dir_).exit_code, 0);
+  EXPECT_EQ(run_cli("info '" + json.string() + "'", dir_).exit_code, 0);
+  EXPECT_EQ(run_cli("info '" + json.string() + "' --max-image-memory plenty", dir_).exit_code, 2);
+}
+
+TEST_F(Cli, MaxGridMemoryFlag) {
+  const fs::path obj = write("quad.obj", kQuadObj);
+  const std::string base = "render '" + obj.string() + "' --accel grid --depth 6 --width 8 --height 6 -o '" +
+                           (dir_ / "g.png").string() + "'";
+  const RunResult low = run_cli(base + " --max-grid-memory 1KiB", dir_);  // depth 6: 32 KiB of bits
+  EXPECT_EQ(low.exit_code, 1);
+  EXPECT_NE(low.err.find("--accel grid --depth 6: the dense voxel bitmask needs 32 KiB, over the limit of 1 KiB "
+                         "(--max-grid-memory raises it"),
+            std::string::npos)
+      << low.err;
+  EXPECT_FALSE(fs::exists(dir_ / "g.png"));
+  EXPECT_EQ(run_cli(base + " --max-grid-memory 32KiB", dir_).exit_code, 0);
+  EXPECT_EQ(run_cli(base + " --max-grid-memory 1x", dir_).exit_code, 2);
+}
+
+// ---------------------------------------------------------------------------------------------
+// Interrupted runs (Ctrl-C): the CLI stops at once, removes the temporary file of a write in
+// progress and exits with 128 + the signal; the old output stays byte for byte, no temporary
+// file remains.
+
+namespace {
+
+/// A CLI child started with posix_spawn (so the test can signal it), stdout and stderr going
+/// to files in \p dir, \p env added to the environment.
+struct Child {
+  pid_t pid = -1;
+  fs::path err_path;
+
+  Child(const std::vector<std::string>& args, const fs::path& dir, const std::vector<std::string>& env = {}) {
+    err_path = dir / "child.err";
+    std::vector<std::string> argv_s{SPECULA_CLI_PATH};
+    argv_s.insert(argv_s.end(), args.begin(), args.end());
+    std::vector<char*> argv;
+    for (std::string& a : argv_s) argv.push_back(a.data());
+    argv.push_back(nullptr);
+    std::vector<std::string> env_s = env;
+    for (char** e = environ; *e != nullptr; ++e) env_s.emplace_back(*e);
+    std::vector<char*> envp;
+    for (std::string& e : env_s) envp.push_back(e.data());
+    envp.push_back(nullptr);
+    posix_spawn_file_actions_t fa;
+    posix_spawn_file_actions_init(&fa);
+    posix_spawn_file_actions_addopen(&fa, 0, "/dev/null", O_RDONLY, 0);
+    posix_spawn_file_actions_addopen(&fa, 1, (dir / "child.out").c_str(), O_WRONLY | O_CREAT | O_TRUNC, 0644);
+    posix_spawn_file_actions_addopen(&fa, 2, err_path.c_str(), O_WRONLY | O_CREAT | O_TRUNC, 0644);
+    if (posix_spawn(&pid, argv[0], &fa, nullptr, argv.data(), envp.data()) != 0) pid = -1;
+    posix_spawn_file_actions_destroy(&fa);
+  }
+  /// Waits up to \p seconds; returns the wait status, or -1 after killing a child that hung.
+  int wait(double seconds) {
+    const auto end = std::chrono::steady_clock::now() + std::chrono::duration<double>(seconds);
+    int status = 0;
+    while (std::chrono::steady_clock::now() < end) {
+      if (waitpid(pid, &status, WNOHANG) == pid) return status;
+      std::this_thread::sleep_for(std::chrono::milliseconds(20));
+    }
+    kill(pid, SIGKILL);
+    waitpid(pid, &status, 0);
+    return -1;
+  }
+};
+
+/// Names in \p dir other than the child's stdout / stderr captures.
+std::vector<std::string> outputs_in(const fs::path& dir) {
+  std::vector<std::string> names;
+  for (const auto& e : fs::directory_iterator(dir)) {
+    const std::string n = e.path().filename().string();
+    if (n != "child.out" && n != "child.err") names.push_back(n);
+  }
+  std::sort(names.begin(), names.end());
+  return names;
+}
+
+bool has_temp_file(const fs::path& dir) {
+  for (const std::string& n : outputs_in(dir))
+    if (n.find(".tmp-") != std::string::npos) return true;
+  return false;
+}
+
+}  // namespace
+
+TEST_F(Cli, InterruptedRenderLeavesTheOldOutput) {
+  const std::string old_bytes = "the previous image, byte for byte\n";
+  const fs::path out = write("out.png", old_bytes);
+  for (const int sig : {SIGINT, SIGTERM}) {
+    // 4000x3000 takes over a minute on one core: the signal lands while rendering.
+    Child child({"render", "cornell", "--width", "4000", "--height", "3000", "--aov", "depth", "-o", out.string()}, dir_);
+    ASSERT_GT(child.pid, 0);
+    std::this_thread::sleep_for(std::chrono::milliseconds(1500));
+    ASSERT_EQ(kill(child.pid, sig), 0);
+    const int status = child.wait(60);
+    ASSERT_NE(status, -1) << "did not stop on signal " << sig;
+    ASSERT_TRUE(WIFEXITED(status)) << "status " << status;
+    EXPECT_EQ(WEXITSTATUS(status), 128 + sig);
+    const std::string err = slurp(child.err_path);
+    EXPECT_NE(err.find(sig == SIGINT ? "interrupted (SIGINT)" : "interrupted (SIGTERM)"), std::string::npos) << err;
+    EXPECT_EQ(slurp(out), old_bytes);
+    EXPECT_EQ(outputs_in(dir_), std::vector<std::string>{"out.png"});
+  }
+}
+
+TEST_F(Cli, InterruptedWriteRemovesItsTemporaryFile) {
+  // The test hook holds every atomic write between its complete temporary file and the rename:
+  // the signal lands while the temporary file exists.
+  const std::string old_bytes = "the previous image, byte for byte\n";
+  const fs::path out = write("out.png", old_bytes);
+  Child child({"render", "cornell", "--width", "64", "--height", "48", "-o", out.string()}, dir_,
+              {"SPECULA_TEST_WRITE_DELAY_MS=30000"});
+  ASSERT_GT(child.pid, 0);
+  const auto end = std::chrono::steady_clock::now() + std::chrono::seconds(60);
+  while (!has_temp_file(dir_) && std::chrono::steady_clock::now() < end)
+    std::this_thread::sleep_for(std::chrono::milliseconds(10));
+  ASSERT_TRUE(has_temp_file(dir_)) << "no temporary file appeared";
+  ASSERT_EQ(kill(child.pid, SIGINT), 0);
+  const int status = child.wait(30);
+  ASSERT_NE(status, -1) << "did not stop on SIGINT";
+  ASSERT_TRUE(WIFEXITED(status)) << "status " << status;
+  EXPECT_EQ(WEXITSTATUS(status), 130);
+  EXPECT_EQ(slurp(out), old_bytes);
+  EXPECT_EQ(outputs_in(dir_), std::vector<std::string>{"out.png"});
 }

@@ -42,9 +42,9 @@ float srgb_decode_for_test(float v) { return std::pow((v + 0.055f) / 1.055f, 2.4
 
 std::vector<Vec3> gradient_image(int w, int h) {
   std::vector<Vec3> img(static_cast<size_t>(w * h));
-  for (int y = 0; y < h; ++y)
-    for (int x = 0; x < w; ++x)
-      img[static_cast<size_t>(y * w + x)] = {static_cast<float>(x) / static_cast<float>(w - 1),
+  for (size_t y = 0; y < static_cast<size_t>(h); ++y)
+    for (size_t x = 0; x < static_cast<size_t>(w); ++x)
+      img[y * static_cast<size_t>(w) + x] = {static_cast<float>(x) / static_cast<float>(w - 1),
                                              static_cast<float>(y) / static_cast<float>(h - 1), 0.25f};
   return img;
 }
@@ -95,7 +95,7 @@ TEST(Image, ExrWithoutRgbChannelsIsRefusedNotReadOutOfBounds) {
   // Two float channels named A and Z: no R, G or B to take (used to index channel -1).
   const auto dir = test::temp_dir("exr_az");
   const int w = 4, h = 2;
-  std::vector<float> a(w * h, 0.5f), z(w * h, 2.0f);
+  std::vector<float> a(size_t{w} * size_t{h}, 0.5f), z(size_t{w} * size_t{h}, 2.0f);
   float* planes[2] = {a.data(), z.data()};
   EXRHeader header;
   InitEXRHeader(&header);
@@ -283,9 +283,9 @@ TEST(Sky, EquirectangularImageIsSampledByDirection) {
   // 8x4 image: left half red, right half green; top row blue.
   const int w = 8, h = 4;
   std::vector<Vec3> img(static_cast<size_t>(w * h));
-  for (int y = 0; y < h; ++y)
-    for (int x = 0; x < w; ++x)
-      img[static_cast<size_t>(y * w + x)] = y == 0 ? Vec3{0, 0, 4} : (x < w / 2 ? Vec3{2, 0, 0} : Vec3{0, 2, 0});
+  for (size_t y = 0; y < static_cast<size_t>(h); ++y)
+    for (size_t x = 0; x < static_cast<size_t>(w); ++x)
+      img[y * static_cast<size_t>(w) + x] = y == 0 ? Vec3{0, 0, 4} : (x < static_cast<size_t>(w) / 2 ? Vec3{2, 0, 0} : Vec3{0, 2, 0});
   write_exr((dir / "sky.exr").string(), w, h, img);
   Scene s;
   s.sky.type = SkyType::Image;

@@ -5,6 +5,7 @@
 #include <algorithm>
 #include <chrono>
 #include <cstdio>
+#include <cstdlib>
 #include <filesystem>
 #include <fstream>
 #include <iterator>
@@ -155,7 +156,8 @@ TEST(LoadFuzz, MutatedSamplesLoadOrThrowSpeculaError) {
       {"cube_be.ply", "cube_be.ply"}, {"cube_embedded.gltf", "cube_embedded.gltf"},
       {"cube_external.gltf", "cube_external.gltf"}, {"cube_external.bin", "cube_external.gltf"},
       {"cube.glb", "cube.glb"},     {"scene.json", "scene.json"}};
-  const int iterations = std::getenv("SPECULA_FUZZ_ITERATIONS") ? std::atoi(std::getenv("SPECULA_FUZZ_ITERATIONS")) : 100;
+  const char* iterations_env = std::getenv("SPECULA_FUZZ_ITERATIONS");
+  const int iterations = iterations_env ? static_cast<int>(std::strtol(iterations_env, nullptr, 10)) : 100;
   std::mt19937 rng(20261122);
   size_t loaded = 0, refused = 0;
   const char* interesting[] = {"0", "-1", "255", "65535", "4294967295", "99999999999999999999",

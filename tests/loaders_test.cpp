@@ -350,7 +350,7 @@ TEST(PlyLoader, TriStripsAlternateWindingAndRestart) {
   std::vector<uint8_t> b;
   for (int i = 0; i < 5; ++i) {
     put<float>(b, static_cast<float>(i % 2));
-    put<float>(b, static_cast<float>(i / 2));
+    put<float>(b, static_cast<float>(i / 2));  // NOLINT(bugprone-integer-division): rows 0, 0, 1, 1, 2
     put<float>(b, 0.0f);
   }
   const int32_t strip[] = {0, 1, 2, 3, 4, -1, 4, 3, 2};

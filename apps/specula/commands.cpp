@@ -19,6 +19,7 @@
 #include "specula/error.h"
 #include "specula/image.h"
 #include "specula/svo.h"
+#include "specula/voxel_grid.h"
 #include "specula/timer.h"
 
 namespace specula::cli {
@@ -40,6 +41,14 @@ bool ends_with_svo(const std::string& spec) {
   const std::string ext = std::filesystem::path(spec).extension().string();
   return ext == ".svo" || ext == ".SVO";
 }
+
+/// Files the loaders do not read themselves (.svo octrees, ray files) get the same size limit.
+void check_input_size(const std::string& path, const InputLimits& limits) {
+  std::error_code ec;
+  const uintmax_t size = std::filesystem::file_size(path, ec);
+  if (!ec && size > limits.max_file_bytes)
+    throw file_error(path, file_size_refusal(size, limits));
+}
 }  // namespace
 
 PreparedScene prepare_scene(const std::string& spec, const LoadOptions& load, const std::string& accel,
@@ -48,6 +57,7 @@ PreparedScene prepare_scene(const std::string& spec, const LoadOptions& load, co
   if (ends_with_svo(spec)) {
     if (accel != "svo" && accel != "bvh")
       throw Error(spec + ": a .svo file is traced by its octree (--accel svo), not '" + accel + "'");
+    check_input_size(spec, load.limits);
     const Timer timer;
     VoxelTracerOptions t = voxel_options.tracer;
     t.threads = threads;
@@ -71,6 +81,11 @@ PreparedScene prepare_scene(const std::string& spec, const LoadOptions& load, co
     throw Error("--lod needs --accel svo: the voxel grid has no coarser levels");
   if (accel != "svo" && accel != "grid" && (voxel_options.tracer.lod > 0 || voxel_options.tracer.mode != VoxelHitMode::Cubes))
     throw Error("--lod and --voxel-mode apply to --accel svo|grid, not '" + accel + "'");
+  if (accel == "grid" && VoxelGridTracer::bitmask_bytes(voxel_options.depth) > voxel_options.tracer.max_grid_bytes)
+    throw Error("--accel grid --depth " + std::to_string(voxel_options.depth) + ": the dense voxel bitmask needs " +
+                format_bytes(VoxelGridTracer::bitmask_bytes(voxel_options.depth)) + ", over the limit of " +
+                format_bytes(voxel_options.tracer.max_grid_bytes, true) +
+                " (--max-grid-memory raises it; --accel svo stores only the occupied voxels)");
   if (accel == "svo" || accel == "grid") {
     SceneVoxelOptions v = voxel_options;
     v.kind = accel;
@@ -143,19 +158,31 @@ bool same_file(const std::filesystem::path& a, const std::filesystem::path& b) {
          std::filesystem::equivalent(a, b, ec);
 }
 
+/// Refuses to write any of \p outputs over one of \p inputs, however either is spelled (./x,
+/// a/../x, a symlink or a hard link to the same file).
+void refuse_overwriting_inputs(const std::vector<std::string>& outputs, const std::vector<std::string>& inputs) {
+  for (const std::string& out : outputs)
+    for (const std::string& in : inputs)
+      if (!in.empty() && same_file(out, in))
+        throw Error(out + ": refusing to overwrite the input " + (in == inputs.front() ? "scene" : "file") + " " + in);
+}
+
 }  // namespace
 
 int render(const RenderOptions& options) {
   const std::string ext = std::filesystem::path(options.output).extension().string();
   if (ext != ".png" && ext != ".exr" && ext != ".PNG" && ext != ".EXR")
     throw Error(options.output + ": output must end in .png or .exr");
-  if (same_file(options.output, options.scene))
-    throw Error(options.output + ": refusing to overwrite the input scene");
+  // Every output (image and AOVs) against every input (the scene file, then its sky image).
+  std::vector<std::string> outputs{options.output};
+  for (Aov a : parse_aovs(options.aovs)) outputs.push_back(aov_path(options.output, a));
+  refuse_overwriting_inputs(outputs, {options.scene});
 
   PreparedScene prepared =
       prepare_scene(options.scene, options.load, options.accel, options.bvh, options.voxel, options.render.threads);
   const Scene& scene = prepared.scene;
   const auto& tracer = prepared.tracer;
+  if (scene.sky.type == SkyType::Image) refuse_overwriting_inputs(outputs, {options.scene, scene.sky.image_path});
   specula::RenderOptions ro = options.render;
   ro.aovs = parse_aovs(options.aovs);
 
@@ -243,6 +270,7 @@ std::vector<Ray> read_rays(const std::string& path) {
 int trace(const TraceOptions& options) {
   double load_ms = 0;
   Scene scene = load_timed(options.scene, options.load, load_ms);
+  if (options.rays != "-") check_input_size(options.rays, options.load.limits);
   const std::vector<Ray> rays = read_rays(options.rays);
 
   const int threads = options.threads <= 0 ? tbb::info::default_concurrency() : options.threads;

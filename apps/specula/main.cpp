@@ -10,6 +10,8 @@
 //
 // Argument parsing is CLI11; every subcommand throws specula::Error for user errors, which
 // main prints as "specula: error: ..." with exit code 1 (2 for usage errors).
+#include <pthread.h>
+#include <signal.h>
 #include <unistd.h>
 
 #include <CLI/CLI.hpp>
@@ -18,24 +20,92 @@
 #include <filesystem>
 #include <iostream>
 #include <string>
+#include <thread>
 
 #include "commands.h"
 #include "specula/error.h"
+#include "specula/image.h"
 #include "specula/load.h"
 
 namespace {
 
 using namespace specula;
 
+/// Ctrl-C (SIGINT), SIGTERM and SIGHUP stop the program at once, wherever it is (loading,
+/// building, rendering, writing), and leave every output either as it was or complete: the
+/// signals are blocked in every thread but one, which waits for them, removes the temporary
+/// files of atomic writes in progress (stop_atomic_writes), says so and exits with status
+/// 128 + the signal number (130 for Ctrl-C). Call before any other thread exists.
+void stop_cleanly_on_signals() {
+  sigset_t set;
+  sigemptyset(&set);
+  for (int sig : {SIGINT, SIGTERM, SIGHUP}) sigaddset(&set, sig);
+  if (pthread_sigmask(SIG_BLOCK, &set, nullptr) != 0) return;  // keep the default actions
+  std::thread([set] {
+    int sig = 0;
+    while (sigwait(&set, &sig) != 0) {
+    }
+    stop_atomic_writes();
+    const char* name = sig == SIGINT ? "SIGINT" : sig == SIGTERM ? "SIGTERM" : "SIGHUP";
+    std::fprintf(stderr, "\nspecula: interrupted (%s): stopped; outputs are unchanged or complete\n", name);
+    std::fflush(stderr);
+    _exit(128 + sig);
+  }).detach();
+}
+
 constexpr const char* kSceneHelp =
     "a built-in scene (pool, glassbox, cornell, city = a ~600k-triangle town, city:N = a town of about N "
     "triangles, 10000 <= N <= 20000000), a JSON scene (.json), a glTF file (.gltf/.glb) "
     "or a bare mesh (.obj/.ply; gets a framing camera, a light and a default material)";
 
+/// An option taking a size in bytes ("8GiB", "512MiB", "1.5G"; parse_byte_size); a malformed
+/// value is a usage error (exit 2) naming the option.
+CLI::Option* add_size_option(CLI::App* app, const std::string& name, uint64_t& target, const std::string& help) {
+  return app
+      ->add_option_function<std::string>(
+          name,
+          [&target, name](const std::string& text) {
+            try {
+              target = parse_byte_size(text);
+            } catch (const specula::Error& e) {
+              throw CLI::ValidationError(name, e.what());
+            }
+          },
+          help)
+      ->type_name("SIZE")
+      ->default_str(format_bytes(target));
+}
+
+/// Input limits (docs/SECURITY.md, "Limits"): every command that loads a scene takes them.
+void add_limit_options(CLI::App* app, LoadOptions& load) {
+  add_size_option(app, "--max-file-size", load.limits.max_file_bytes,
+                  "refuse input files (scene, mesh, MTL, glTF buffer, sky image, .svo) larger than this; units K, M, "
+                  "G, T (powers of 1024), e.g. 8GiB");
+  app->add_option_function<std::string>(
+         "--max-elements",
+         [&load](const std::string& text) {
+           const bool digits = !text.empty() && text.size() <= 20 &&
+                               std::all_of(text.begin(), text.end(), [](char c) { return c >= '0' && c <= '9'; });
+           const unsigned long long v = digits ? std::stoull(text) : 0;
+           if (!digits || v == 0 || v > kMaxElementsCeiling)
+             throw CLI::ValidationError("--max-elements", "'" + text + "': expected a whole number from 1 to " +
+                                                             std::to_string(kMaxElementsCeiling) +
+                                                             " (vertex indices are 32-bit)");
+           load.limits.max_elements = v;
+         },
+         "refuse scenes with more vertices, or more triangle indices (3 per triangle), than this")
+      ->type_name("N")
+      ->default_str(std::to_string(load.limits.max_elements));
+  add_size_option(app, "--max-image-memory", load.limits.max_image_bytes,
+                  "refuse sky images whose decoding would take more memory than this (estimated from the header "
+                  "before decoding), e.g. 4GiB");
+}
+
 void add_data_option(CLI::App* app, LoadOptions& load) {
   app->add_option("--data", load.data.cli_dir,
                   "folder searched first for meshes of built-in scenes (then $SPECULA_DATA, then "
                   "../shared/data/meshes beside the source tree)");
+  add_limit_options(app, load);
 }
 
 void add_bvh_options(CLI::App* app, BvhOptions& bvh) {
@@ -69,6 +139,8 @@ void add_integrator_options(CLI::App* app, std::string& accel, specula::RenderOp
          "what a ray hits in a voxel: cubes, or contours (the slab between seed 000's two contour planes)")
       ->check(CLI::IsMember({"cubes", "contours"}))
       ->default_str("cubes");
+  add_size_option(app, "--max-grid-memory", voxel.tracer.max_grid_bytes,
+                  "--accel grid: refuse a dense voxel bitmask larger than this (depth 11 takes 1 GiB)");
   app->add_option("--lod", voxel.tracer.lod, "octree level of detail: trace nodes at this depth as leaves (0 = full depth)")
       ->check(CLI::Range(0, kMaxVoxelDepth))
       ->capture_default_str();
@@ -85,7 +157,8 @@ void add_integrator_options(CLI::App* app, std::string& accel, specula::RenderOp
 
 }  // namespace
 
-int main(int argc, char** argv) {
+/// The whole program but the signal set-up; main() catches what building the options may throw.
+static int run(int argc, char** argv) {
   CLI::App app{
       "specula: real-time CPU ray tracing of reflections and refractions.\n"
       "Renders scenes with a Whitted ray tracer over a binned-SAH BVH, traces ray files, and\n"
@@ -222,7 +295,8 @@ int main(int argc, char** argv) {
   try {
     app.parse(argc, argv);
   } catch (const CLI::ParseError& e) {
-    return app.exit(e);
+    // --help and --version exit 0; every usage error exits 2 (CLI11's own codes are 100+).
+    return app.exit(e) == 0 ? 0 : 2;
   }
 
   try {
@@ -244,4 +318,16 @@ int main(int argc, char** argv) {
     return 1;
   }
   return 0;
+}
+
+int main(int argc, char** argv) {
+  stop_cleanly_on_signals();
+  try {
+    return run(argc, argv);
+  } catch (const std::exception& e) {  // setting up the options allocates: nothing escapes main
+    std::fprintf(stderr, "specula: error: %s\n", e.what());
+  } catch (...) {
+    std::fprintf(stderr, "specula: error: unknown exception\n");
+  }
+  return 1;
 }

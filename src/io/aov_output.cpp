@@ -38,24 +38,32 @@ void write_display_png(const std::string& path, int w, int h, const std::vector<
 
 }  // namespace
 
+namespace {
+
+bool is_exr(const std::string& path) {
+  std::string ext = std::filesystem::path(path).extension().string();
+  for (char& c : ext) c = static_cast<char>(std::tolower(static_cast<unsigned char>(c)));
+  return ext == ".exr";
+}
+
+}  // namespace
+
+std::string aov_path(const std::string& base_path, Aov aov) {
+  const std::filesystem::path base(base_path);
+  const std::string ext = is_exr(base_path) ? base.extension().string() : ".png";
+  return (base.parent_path() / (base.stem().string() + "." + aov_name(aov) + ext)).string();
+}
+
 std::vector<std::string> write_aovs(const std::string& base_path, const Film& film) {
-  namespace fs = std::filesystem;
-  const fs::path base(base_path);
-  std::string ext = base.extension().string();
-  std::string lower = ext;
-  for (char& c : lower) c = static_cast<char>(std::tolower(static_cast<unsigned char>(c)));
-  const bool exr = lower == ".exr";
-  if (!exr) ext = ".png";
-  auto name_for = [&](const char* aov) {
-    return (base.parent_path() / (base.stem().string() + "." + aov + ext)).string();
-  };
+  const bool exr = is_exr(base_path);
+  auto name_for = [&](Aov aov) { return aov_path(base_path, aov); };
   const int w = film.width, h = film.height;
   const size_t n = static_cast<size_t>(std::max(w, 0)) * static_cast<size_t>(std::max(h, 0));
   std::vector<std::string> written;
   std::vector<Vec3> img(n);
 
   if (n > 0 && film.depth.size() == n) {
-    const std::string path = name_for("depth");
+    const std::string path = name_for(Aov::Depth);
     if (exr) {
       for (size_t i = 0; i < n; ++i) img[i] = Vec3{film.depth[i]};
       write_exr(path, w, h, img);
@@ -71,7 +79,7 @@ std::vector<std::string> write_aovs(const std::string& base_path, const Film& fi
     written.push_back(path);
   }
   if (n > 0 && film.normal.size() == n) {
-    const std::string path = name_for("normal");
+    const std::string path = name_for(Aov::Normal);
     if (exr) {
       write_exr(path, w, h, film.normal);
     } else {
@@ -82,7 +90,7 @@ std::vector<std::string> write_aovs(const std::string& base_path, const Film& fi
     written.push_back(path);
   }
   if (n > 0 && film.prim_id.size() == n) {
-    const std::string path = name_for("prim");
+    const std::string path = name_for(Aov::PrimId);
     for (size_t i = 0; i < n; ++i) {
       if (film.prim_id[i] == kNoHit) {
         img[i] = Vec3{};
@@ -98,7 +106,7 @@ std::vector<std::string> write_aovs(const std::string& base_path, const Film& fi
     written.push_back(path);
   }
   if (n > 0 && film.cost.size() == n) {
-    const std::string path = name_for("cost");
+    const std::string path = name_for(Aov::Cost);
     if (exr) {
       for (size_t i = 0; i < n; ++i) img[i] = Vec3{static_cast<float>(film.cost[i])};
       write_exr(path, w, h, img);

@@ -4,10 +4,15 @@
 #include <unistd.h>
 
 #include <cerrno>
+#include <chrono>
+#include <cstdlib>
 #include <cstring>
 #include <filesystem>
+#include <mutex>
+#include <set>
 #include <string>
 #include <system_error>
+#include <thread>
 #include <vector>
 
 #include "specula/error.h"
@@ -16,6 +21,39 @@
 namespace specula {
 
 namespace fs = std::filesystem;
+
+namespace {
+
+/// The temporary files of the writes in progress, for stop_atomic_writes(). A temporary file is
+/// created and registered, and renamed and unregistered, under the mutex, so it exists exactly
+/// while it is registered (as far as stop_atomic_writes can tell).
+struct PendingWrites {
+  std::mutex mutex;
+  std::set<std::string> temp_files;
+};
+
+PendingWrites& pending() {
+  static PendingWrites* p = new PendingWrites;  // never destroyed: usable until _exit
+  return *p;
+}
+
+/// Test hook (tests/cli_test.cpp): SPECULA_TEST_WRITE_DELAY_MS=N sleeps N ms after the data is
+/// written and before the rename, so a test can interrupt a write in that window.
+void test_delay() {
+  const char* env = std::getenv("SPECULA_TEST_WRITE_DELAY_MS");
+  if (env == nullptr || *env == '\0') return;
+  const long ms = std::strtol(env, nullptr, 10);
+  if (ms > 0 && ms <= 60000) std::this_thread::sleep_for(std::chrono::milliseconds(ms));
+}
+
+}  // namespace
+
+void stop_atomic_writes() {
+  PendingWrites& p = pending();
+  p.mutex.lock();  // held for good: writers now block before creating or renaming a temporary file
+  for (const std::string& tmp : p.temp_files) ::unlink(tmp.c_str());
+  p.temp_files.clear();
+}
 
 void write_file_atomic(const std::string& path, std::span<const uint8_t> bytes,
                        const std::string& protect) {
@@ -37,14 +75,23 @@ void write_file_atomic(const std::string& path, std::span<const uint8_t> bytes,
   const std::string tmpl = (dir / leaf).string();
   std::vector<char> name(tmpl.begin(), tmpl.end());
   name.push_back('\0');
+  PendingWrites& reg = pending();
+  std::unique_lock lock(reg.mutex);
   const int fd = ::mkstemp(name.data());
   if (fd < 0) throw file_error(path, std::string("cannot create a temporary file: ") + std::strerror(errno));
   const std::string tmp(name.data());
+  reg.temp_files.insert(tmp);
+  lock.unlock();
+  const auto forget = [&] {
+    const std::lock_guard relock(reg.mutex);
+    ::unlink(tmp.c_str());
+    reg.temp_files.erase(tmp);
+  };
 
   auto fail = [&](const std::string& what) {
     const int err = errno;
     ::close(fd);
-    ::unlink(tmp.c_str());
+    forget();
     return file_error(path, what + ": " + std::strerror(err));
   };
 
@@ -65,13 +112,19 @@ void write_file_atomic(const std::string& path, std::span<const uint8_t> bytes,
   if (::fsync(fd) != 0) throw fail("fsync failed");
   if (::close(fd) != 0) {
     const int err = errno;
-    ::unlink(tmp.c_str());
+    forget();
     throw file_error(path, std::string("close failed: ") + std::strerror(err));
   }
-  if (::rename(tmp.c_str(), path.c_str()) != 0) {
-    const int err = errno;
-    ::unlink(tmp.c_str());
-    throw file_error(path, std::string("rename failed: ") + std::strerror(err));
+  test_delay();
+  {
+    const std::lock_guard relock(reg.mutex);
+    if (::rename(tmp.c_str(), path.c_str()) != 0) {
+      const int err = errno;
+      ::unlink(tmp.c_str());
+      reg.temp_files.erase(tmp);
+      throw file_error(path, std::string("rename failed: ") + std::strerror(err));
+    }
+    reg.temp_files.erase(tmp);
   }
   // Make the rename itself durable (best effort: some file systems refuse fsync on folders).
   const int dfd = ::open(dir.c_str(), O_RDONLY | O_DIRECTORY);

@@ -166,15 +166,32 @@ void write_image(const std::string& path, int width, int height, std::span<const
 
 namespace {
 
-/// Decoding memory budget of one image (the decoder's buffers plus our linear RGB copy): a
-/// 570-byte EXR claiming huge tiles made tinyexr allocate 3 GB (found by fuzz_sky_image). The
-/// estimate is computed in 64 bits from the header, before decoding, and printed on refusal.
-constexpr uint64_t kMaxImageDecodeBytes = uint64_t{1} << 30;  // 1 GiB: e.g. 8192 x 4096 RGB
+/// Decoding memory budget of one image (the decoder's buffers plus our linear RGB copy,
+/// InputLimits::max_image_bytes, 1 GiB by default: e.g. 8192 x 4096 RGB): a 570-byte EXR
+/// claiming huge tiles made tinyexr allocate 3 GB (found by fuzz_sky_image). The estimate is
+/// computed in 64 bits from the header, before decoding, and printed on refusal.
+void check_decode_budget(const std::string& path, const InputLimits& limits, uint64_t bytes, const std::string& what) {
+  if (bytes > limits.max_image_bytes)
+    throw file_error(path, what + " needs about " + format_bytes(bytes) + " to decode, over the limit of " +
+                               format_bytes(limits.max_image_bytes, true) + " (--max-image-memory raises it)");
+}
 
-void check_decode_budget(const std::string& path, uint64_t bytes, const std::string& what) {
-  if (bytes > kMaxImageDecodeBytes)
-    throw file_error(path, what + " needs about " + std::to_string(bytes >> 20) + " MiB to decode, more than the " +
-                               std::to_string(kMaxImageDecodeBytes >> 20) + " MiB an image may use");
+/// Reads a whole image file after checking its size against limits.max_file_bytes and the
+/// decoder's own ceiling \p hard_max (stb_image takes an int length).
+template <class Bytes>
+Bytes read_image_file(const std::string& path, const InputLimits& limits, uintmax_t hard_max, const char* decoder) {
+  std::error_code ec;
+  const uintmax_t size = fs::file_size(path, ec);
+  if (ec) throw file_error(path, "cannot read file size: " + ec.message());
+  if (size > limits.max_file_bytes)
+    throw file_error(path, file_size_refusal(size, limits));
+  if (size > hard_max)
+    throw file_error(path, std::string(decoder) + " reads files of at most " + format_bytes(hard_max));
+  std::ifstream in(path, std::ios::binary);
+  Bytes bytes(static_cast<size_t>(size), 0);
+  if (!in || (size > 0 && !in.read(reinterpret_cast<char*>(bytes.data()), static_cast<std::streamsize>(size))))
+    throw file_error(path, "cannot read image: read error");
+  return bytes;
 }
 
 /// Radiance RGBE (.hdr) decoding, our own instead of stb_image's: stb_image 2.27 (Debian 12)
@@ -189,7 +206,8 @@ bool is_radiance(const std::string& data) {
   return data.rfind("#?RADIANCE\n", 0) == 0 || data.rfind("#?RGBE\n", 0) == 0;
 }
 
-std::vector<Vec3> decode_radiance(const std::string& path, const std::string& data, int& width, int& height) {
+std::vector<Vec3> decode_radiance(const std::string& path, const InputLimits& limits, const std::string& data, int& width,
+                                  int& height) {
   const auto fail = [&path](const std::string& what) { return file_error(path, "cannot read Radiance HDR: " + what); };
   size_t pos = 0;
   const auto next_line = [&](std::string& line) {
@@ -242,7 +260,7 @@ std::vector<Vec3> decode_radiance(const std::string& path, const std::string& da
     const float f = std::ldexp(1.0f, static_cast<int>(q[3]) - 136);
     return Vec3{static_cast<float>(q[0]) * f, static_cast<float>(q[1]) * f, static_cast<float>(q[2]) * f};
   };
-  check_decode_budget(path, static_cast<uint64_t>(w) * static_cast<uint64_t>(h) * sizeof(Vec3),
+  check_decode_budget(path, limits, static_cast<uint64_t>(w) * static_cast<uint64_t>(h) * sizeof(Vec3),
                       std::to_string(w) + "x" + std::to_string(h) + " Radiance HDR");
   const size_t W = static_cast<size_t>(w);
   std::vector<Vec3> out(W * static_cast<size_t>(h));
@@ -405,18 +423,8 @@ void check_exr_tiles(const std::string& path, const EXRHeader& h, const std::vec
 /// the channel buffers of an image whose pixel data fails to decode (its FreeEXRImage frees
 /// image.num_channels buffers, a count it sets only on success), so the count is set before
 /// decoding here. Single-part scanline or tiled images, half / float / uint channels, like LoadEXR.
-std::vector<Vec3> read_exr(const std::string& path, int& width, int& height) {
-  std::vector<unsigned char> bytes;
-  {
-    std::error_code ec;
-    const uintmax_t size = fs::file_size(path, ec);
-    if (ec) throw file_error(path, "cannot read file size: " + ec.message());
-    if (size > (uintmax_t{1} << 32)) throw file_error(path, "EXR files larger than 4 GiB are refused");
-    std::ifstream in(path, std::ios::binary);
-    bytes.resize(static_cast<size_t>(size));
-    if (!in || (size > 0 && !in.read(reinterpret_cast<char*>(bytes.data()), static_cast<std::streamsize>(size))))
-      throw file_error(path, "cannot read EXR: read error");
-  }
+std::vector<Vec3> read_exr(const std::string& path, const InputLimits& limits, int& width, int& height) {
+  const auto bytes = read_image_file<std::vector<unsigned char>>(path, limits, uintmax_t{1} << 32, "tinyexr");
   EXRVersion version;
   if (ParseEXRVersionFromMemory(&version, bytes.data(), bytes.size()) != TINYEXR_SUCCESS)
     throw file_error(path, "cannot read EXR: not an OpenEXR file (bad magic number or version)");
@@ -448,7 +456,7 @@ std::vector<Vec3> read_exr(const std::string& path, int& width, int& height) {
       stored = ((static_cast<uint64_t>(dw) + tx - 1) / tx) * ((static_cast<uint64_t>(dh) + ty - 1) / ty);
       stored = tx * ty > (uint64_t{1} << 40) / std::max<uint64_t>(stored, 1) ? uint64_t{1} << 40 : stored * tx * ty;
     }
-    check_decode_budget(path, std::min<uint64_t>(stored, uint64_t{1} << 40) * 4 * static_cast<uint64_t>(h.num_channels) +
+    check_decode_budget(path, limits, std::min<uint64_t>(stored, uint64_t{1} << 40) * 4 * static_cast<uint64_t>(h.num_channels) +
                                   static_cast<uint64_t>(dw) * static_cast<uint64_t>(dh) * sizeof(Vec3),
                         std::to_string(dw) + "x" + std::to_string(dh) + " EXR with " + std::to_string(h.num_channels) + " channels");
   }
@@ -513,29 +521,19 @@ std::vector<Vec3> read_exr(const std::string& path, int& width, int& height) {
 
 }  // namespace
 
-std::vector<Vec3> read_image(const std::string& path, int& width, int& height) {
+std::vector<Vec3> read_image(const std::string& path, int& width, int& height, const InputLimits& limits) {
   if (!fs::exists(path)) throw file_error(path, "no such file");
   const std::string ext = lower_extension(path);
   std::vector<Vec3> out;
-  if (ext == ".exr") return read_exr(path, width, height);
-  std::string bytes;
-  {
-    std::error_code ec;
-    const uintmax_t size = fs::file_size(path, ec);
-    if (ec) throw file_error(path, "cannot read file size: " + ec.message());
-    if (size >= (uintmax_t{1} << 31)) throw file_error(path, "images of 2 GiB or more are refused");
-    std::ifstream in(path, std::ios::binary);
-    bytes.resize(static_cast<size_t>(size));
-    if (!in || (size > 0 && !in.read(bytes.data(), static_cast<std::streamsize>(size))))
-      throw file_error(path, "cannot read image: read error");
-  }
-  if (is_radiance(bytes)) return decode_radiance(path, bytes, width, height);  // already linear
+  if (ext == ".exr") return read_exr(path, limits, width, height);
+  std::string bytes = read_image_file<std::string>(path, limits, (uintmax_t{1} << 31) - 1, "stb_image");
+  if (is_radiance(bytes)) return decode_radiance(path, limits, bytes, width, height);  // already linear
   drop_empty_png_idat(bytes);
   int channels = 0;
   if (stbi_info_from_memory(reinterpret_cast<const stbi_uc*>(bytes.data()), static_cast<int>(bytes.size()), &width, &height,
                             &channels) &&
       width > 0 && height > 0)
-    check_decode_budget(path, static_cast<uint64_t>(width) * static_cast<uint64_t>(height) * (4 + sizeof(Vec3)),
+    check_decode_budget(path, limits, static_cast<uint64_t>(width) * static_cast<uint64_t>(height) * (4 + sizeof(Vec3)),
                         std::to_string(width) + "x" + std::to_string(height) + " image");
   unsigned char* data = stbi_load_from_memory(reinterpret_cast<const stbi_uc*>(bytes.data()), static_cast<int>(bytes.size()),
                                               &width, &height, &channels, 3);
@@ -549,11 +547,11 @@ std::vector<Vec3> read_image(const std::string& path, int& width, int& height) {
   return out;
 }
 
-void load_sky_image(Sky& sky) {
+void load_sky_image(Sky& sky, const InputLimits& limits) {
   if (sky.type != SkyType::Image) return;
   if (sky.image_path.empty()) throw Error("sky: type is image but no image path is given");
   int w = 0, h = 0;
-  std::vector<Vec3> img = read_image(sky.image_path, w, h);
+  std::vector<Vec3> img = read_image(sky.image_path, w, h, limits);
   for (Vec3& c : img)
     if (!is_finite(c)) c = Vec3{};
   sky.image = std::move(img);

@@ -136,11 +136,12 @@ Mat4 face_frame(int axis, float sign, float offset) {
   }
   Mat4 m;
   // Columns are the images of the local axes.
-  for (int r = 0; r < 3; ++r) {
-    m.m[static_cast<size_t>(r * 4 + 0)] = u[r];
-    m.m[static_cast<size_t>(r * 4 + 1)] = v[r];
-    m.m[static_cast<size_t>(r * 4 + 2)] = n[r];
-    m.m[static_cast<size_t>(r * 4 + 3)] = n[r] * offset;
+  for (size_t r = 0; r < 3; ++r) {
+    const int i = static_cast<int>(r);
+    m.m[r * 4 + 0] = u[i];
+    m.m[r * 4 + 1] = v[i];
+    m.m[r * 4 + 2] = n[i];
+    m.m[r * 4 + 3] = n[i] * offset;
   }
   return m;
 }

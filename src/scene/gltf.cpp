@@ -78,6 +78,7 @@ uint32_t read_u32le(const std::string& d, size_t at) {
 /// State for the confined file-system callbacks.
 struct FsGuard {
   fs::path dir;          ///< canonical scene folder
+  InputLimits limits;    ///< max_file_bytes applies to every buffer read
   std::string refusal;   ///< first refusal, reported by the loader
 };
 
@@ -113,8 +114,17 @@ bool fs_read(std::vector<unsigned char>* out, std::string* err, const std::strin
   }
   std::error_code ec;
   const uintmax_t size = fs::file_size(p, ec);
-  if (ec || size > detail::kMaxFileBytes || size >= (uintmax_t{1} << 32)) {
-    if (err) *err = "cannot read or larger than 4 GiB";
+  if (ec) {
+    if (err) *err = "cannot read the file size";
+    return false;
+  }
+  if (size > g->limits.max_file_bytes || size >= (uintmax_t{1} << 32)) {
+    // tinygltf holds buffers with 32-bit sizes: 4 GiB is a hard ceiling.
+    if (g->refusal.empty())
+      g->refusal = "'" + path + "': " +
+                   (size > g->limits.max_file_bytes ? file_size_refusal(size, g->limits)
+                                                    : "buffers of 4 GiB or more are not supported");
+    if (err) *err = "refused";
     return false;
   }
   std::ifstream in(p, std::ios::binary);
@@ -146,8 +156,8 @@ class GltfLoader {
       : path_(path), file_(path.string()), options_(options) {}
 
   Scene load() {
-    const std::string data = detail::read_file(path_);
-    if (data.size() >= (uint64_t{1} << 32)) fail("glTF files must be smaller than 4 GiB");
+    const std::string data = detail::read_file(path_, options_.limits);
+    if (data.size() >= (uint64_t{1} << 32)) fail("glTF files of 4 GiB or more are not supported");
     const bool binary = data.size() >= 4 && data.compare(0, 4, "glTF") == 0;
     if (detail::lower_extension(path_) == ".glb" && !binary)
       fail("not a binary glTF file (missing 'glTF' magic)");
@@ -159,6 +169,7 @@ class GltfLoader {
     }
     prescan_json(json_text);
 
+    guard_.limits = options_.limits;
     guard_.dir = fs::weakly_canonical(path_.parent_path().empty() ? fs::path(".") : path_.parent_path());
     tinygltf::TinyGLTF ctx;
     ctx.SetFsCallbacks({&fs_exists, &fs_expand, &fs_read, &fs_write, &guard_});
@@ -343,7 +354,8 @@ class GltfLoader {
     v.ncomp = want_type == TINYGLTF_TYPE_SCALAR ? 1 : want_type;  // VEC2/3/4 == 2/3/4
     v.normalized = a.normalized;
     v.count = a.count;
-    if (a.count >= detail::kMaxElements) fail(w + "count " + std::to_string(a.count) + " too large");
+    detail::check_elements(options_.limits, file_, w + "count: ", a.count,
+                           want_type == TINYGLTF_TYPE_SCALAR ? detail::Elements::Indices : detail::Elements::Vertices);
     if (a.count == 0) return v;
     if (a.bufferView < 0 || static_cast<size_t>(a.bufferView) >= model_.bufferViews.size())
       fail(w + "bufferView " + std::to_string(a.bufferView) + " out of range");
@@ -472,9 +484,9 @@ class GltfLoader {
   static Mat4 local_transform(const tinygltf::Node& n) {
     if (n.matrix.size() == 16) {
       Mat4 r;
-      for (int row = 0; row < 4; ++row)
-        for (int col = 0; col < 4; ++col)  // glTF matrices are column-major
-          r.m[static_cast<size_t>(row * 4 + col)] = static_cast<float>(n.matrix[static_cast<size_t>(col * 4 + row)]);
+      for (size_t row = 0; row < 4; ++row)
+        for (size_t col = 0; col < 4; ++col)  // glTF matrices are column-major
+          r.m[row * 4 + col] = static_cast<float>(n.matrix[col * 4 + row]);
       return r;
     }
     Mat4 t, r, s;
@@ -619,11 +631,11 @@ class GltfLoader {
         const uint64_t ni_in = (prim.indices >= 0 && static_cast<size_t>(prim.indices) < acc.size())
                                    ? acc[static_cast<size_t>(prim.indices)].count : nv_in;
         const bool fanned = prim.mode == TINYGLTF_MODE_TRIANGLE_STRIP || prim.mode == TINYGLTF_MODE_TRIANGLE_FAN;
-        const uint64_t ni_out = fanned ? 3 * ni_in : ni_in;
-        if (nv_in > detail::kMaxElements || ni_in > detail::kMaxElements ||
-            scene.positions.size() + nv_in > detail::kMaxElements ||
-            scene.indices.size() + ni_out > detail::kMaxElements)
-          fail(what + ": the scene would exceed 2^31 vertices or indices");
+        const uint64_t ni_out = fanned ? (ni_in >= 3 ? 3 * (ni_in - 2) : 0) : ni_in / 3 * 3;  // as converted below
+        detail::check_elements(options_.limits, file_, what + ": ", scene.positions.size() + nv_in,
+                               detail::Elements::Vertices);
+        detail::check_elements(options_.limits, file_, what + ": ", scene.indices.size() + ni_out,
+                               detail::Elements::Indices);
       }
       md.positions = read_vec3(pos_it->second, what + " POSITION");
       const auto nrm_it = prim.attributes.find("NORMAL");
@@ -673,8 +685,8 @@ class GltfLoader {
                std::to_string(model_.materials.size()) + " materials)");
         mat = static_cast<uint32_t>(prim.material);
       }
-      if (scene.indices.size() + md.indices.size() > detail::kMaxElements)
-        fail("more than 2^31 triangle indices");
+      detail::check_elements(options_.limits, file_, what + ": ", scene.indices.size() + md.indices.size(),
+                             detail::Elements::Indices);
       detail::append_mesh(scene, std::move(md), mat, world, dropped);
     }
   }

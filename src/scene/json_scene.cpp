@@ -28,7 +28,7 @@ class JsonSceneLoader {
       : path_(path), file_(path.string()), dir_(path.parent_path()), options_(options) {}
 
   Scene load() {
-    const std::string text = detail::read_file(path_);
+    const std::string text = detail::read_file(path_, options_.limits);
     json root;
     try {
       root = json::parse(text);
@@ -89,7 +89,7 @@ class JsonSceneLoader {
            std::to_string(byte) + ")";
   }
 
-  void check_keys(const json& obj, const std::string& where, std::set<std::string> allowed) const {
+  void check_keys(const json& obj, const std::string& where, const std::set<std::string>& allowed) const {
     for (const auto& [key, value] : obj.items()) {
       (void)value;
       if (!allowed.count(key))
@@ -267,8 +267,10 @@ class JsonSceneLoader {
       // Geometry only: the sub-file's cameras and lights are ignored; its materials are kept
       // unless overridden.
       md.name = name.empty() ? file.stem().string() : name;
-      if (scene_.indices.size() + sub.indices.size() > detail::kMaxElements)
-        fail(where + ": the scene would exceed 2^31 triangle indices");
+      detail::check_elements(options_.limits, file_, where + ": ", scene_.positions.size() + sub.positions.size(),
+                             detail::Elements::Vertices);
+      detail::check_elements(options_.limits, file_, where + ": ", scene_.indices.size() + sub.indices.size(),
+                             detail::Elements::Indices);
       md.positions = sub.positions;
       md.normals = sub.normals;
       md.indices = sub.indices;
@@ -282,8 +284,10 @@ class JsonSceneLoader {
       }
     }
     if (md.indices.empty()) return;
-    if (scene_.indices.size() + md.indices.size() > detail::kMaxElements)
-      fail(where + ": the scene would exceed 2^31 triangle indices");
+    detail::check_elements(options_.limits, file_, where + ": ", scene_.positions.size() + md.positions.size(),
+                           detail::Elements::Vertices);
+    detail::check_elements(options_.limits, file_, where + ": ", scene_.indices.size() + md.indices.size(),
+                           detail::Elements::Indices);
     detail::append_mesh(scene_, std::move(md), override_id.value_or(0), xf, dropped_);
   }
 

@@ -3,6 +3,7 @@
 #include <cctype>
 #include <cstdio>
 #include <cstdlib>
+#include <cstring>
 #include <fstream>
 #include <iostream>
 #include <sstream>
@@ -52,6 +53,77 @@ std::string DataPaths::describe() const {
 }
 
 // ---------------------------------------------------------------------------------------------
+// Sizes
+
+std::string format_bytes(uint64_t bytes, bool exact) {
+  static constexpr const char* kUnits[] = {"KiB", "MiB", "GiB", "TiB", "PiB", "EiB"};
+  if (bytes < 1024) return std::to_string(bytes) + (bytes == 1 ? " byte" : " bytes");
+  int unit = 0;
+  uint64_t scale = 1024;
+  while (unit + 1 < 6 && bytes / scale >= 1024) {
+    scale *= 1024;
+    ++unit;
+  }
+  char buf[48];
+  if (bytes % scale == 0) {
+    std::snprintf(buf, sizeof buf, "%llu %s", static_cast<unsigned long long>(bytes / scale), kUnits[unit]);
+    return buf;
+  }
+  std::snprintf(buf, sizeof buf, "%.2f %s", static_cast<double>(bytes) / static_cast<double>(scale), kUnits[unit]);
+  return exact ? with_thousands(bytes) + " bytes (" + buf + ")" : std::string(buf);
+}
+
+uint64_t parse_byte_size(const std::string& text) {
+  const auto bad = [&text](const std::string& why) {
+    return Error("'" + text + "': " + why +
+                 " (expected bytes with an optional unit K, M, G or T, e.g. 8GiB, 512MiB, 1.5G; units are powers "
+                 "of 1024)");
+  };
+  size_t i = 0;
+  while (i < text.size() && (std::isdigit(static_cast<unsigned char>(text[i])) || text[i] == '.')) ++i;
+  const std::string number = text.substr(0, i);
+  if (number.empty() || number == "." || std::count(number.begin(), number.end(), '.') > 1)
+    throw bad("not a size");
+  size_t j = i;
+  while (j < text.size() && text[j] == ' ') ++j;
+  std::string unit = text.substr(j);
+  std::transform(unit.begin(), unit.end(), unit.begin(),
+                 [](unsigned char c) { return static_cast<char>(std::tolower(c)); });
+  int shift = 0;
+  if (unit.empty() || unit == "b") {
+    shift = 0;
+  } else {
+    const char* const kPrefixes = "kmgt";
+    const char* p = std::strchr(kPrefixes, unit[0]);
+    const std::string rest = unit.substr(1);
+    if (p == nullptr || *p == '\0' || !(rest.empty() || rest == "b" || rest == "ib")) throw bad("unknown unit '" + text.substr(j) + "'");
+    shift = 10 * static_cast<int>(p - kPrefixes + 1);
+  }
+  // Integers exactly in 64 bits; fractions ("1.5G") through long double, rounded down.
+  uint64_t value = 0;
+  if (number.find('.') == std::string::npos) {
+    for (char c : number) {
+      const uint64_t digit = static_cast<uint64_t>(c - '0');
+      if (value > (UINT64_MAX - digit) / 10) throw bad("too large");
+      value = value * 10 + digit;
+    }
+    if (shift > 0 && value > (UINT64_MAX >> shift)) throw bad("too large");
+    value <<= shift;
+  } else {
+    const long double v = std::strtold(number.c_str(), nullptr) * static_cast<long double>(uint64_t{1} << shift);
+    if (!(v < 18446744073709551616.0L)) throw bad("too large");
+    value = static_cast<uint64_t>(v);
+  }
+  if (value == 0) throw bad("must be at least 1 byte");
+  return value;
+}
+
+std::string file_size_refusal(uint64_t size, const InputLimits& limits) {
+  return "file is " + format_bytes(size, true) + ", over the limit of " + format_bytes(limits.max_file_bytes, true) +
+         " (--max-file-size raises it)";
+}
+
+// ---------------------------------------------------------------------------------------------
 // load_scene
 
 Scene load_scene(const std::string& spec, const LoadOptions& options) {
@@ -77,7 +149,7 @@ Scene load_scene(const std::string& spec, const LoadOptions& options) {
   // The scene is complete plain data: an image sky is decoded here, not by the renderer.
   if (scene.sky.type == SkyType::Image && scene.sky.image.empty()) {
     try {
-      load_sky_image(scene.sky);
+      load_sky_image(scene.sky, options.limits);
     } catch (const Error& e) {
       throw file_error(spec, std::string("sky image: ") + e.what());
     }
@@ -98,27 +170,37 @@ void warn(const LoadOptions& options, const std::string& message) {
   }
 }
 
-uint64_t checked_file_size(const fs::path& path) {
+uint64_t checked_file_size(const fs::path& path, const InputLimits& limits) {
   std::error_code ec;
   const fs::file_status st = fs::status(path, ec);
   if (ec || !fs::exists(st)) throw file_error(path.string(), "file not found");
   if (!fs::is_regular_file(st)) throw file_error(path.string(), "not a regular file");
   const uintmax_t size = fs::file_size(path, ec);
   if (ec) throw file_error(path.string(), "cannot read file size: " + ec.message());
-  if (size > kMaxFileBytes)
-    throw file_error(path.string(), "file is " + with_thousands(size) +
-                                        " bytes; files larger than 4 GiB are refused");
+  if (size > limits.max_file_bytes) throw file_error(path.string(), specula::file_size_refusal(size, limits));
   return size;
 }
 
-std::string read_file(const fs::path& path) {
-  const uint64_t size = checked_file_size(path);
+std::string read_file(const fs::path& path, const InputLimits& limits) {
+  const uint64_t size = checked_file_size(path, limits);
   std::ifstream in(path, std::ios::binary);
   if (!in) throw file_error(path.string(), "cannot open file");
   std::string data(static_cast<size_t>(size), '\0');
   if (size > 0 && !in.read(data.data(), static_cast<std::streamsize>(size)))
     throw file_error(path.string(), "read error");
   return data;
+}
+
+void check_elements(const InputLimits& limits, const std::string& file, const std::string& where,
+                    uint64_t count, Elements what) {
+  if (count <= limits.max_elements) return;
+  // Scene memory they take: a position and a normal per vertex; an index per corner plus a
+  // material id per triangle. The acceleration structure comes on top.
+  const bool vertices = what == Elements::Vertices;
+  const uint64_t bytes = vertices ? count * 2 * sizeof(Vec3) : count * sizeof(uint32_t) + count / 3 * sizeof(uint32_t);
+  throw file_error(file, where + with_thousands(count) + (vertices ? " vertices" : " triangle indices") +
+                             ", over the limit of " + with_thousands(limits.max_elements) + " (about " +
+                             format_bytes(bytes) + " of scene memory; --max-elements raises the limit)");
 }
 
 std::string lower_extension(const fs::path& path) {

@@ -14,21 +14,25 @@
 
 namespace specula::detail {
 
-/// Files larger than this are refused before anything is read (counts are 64-bit checked
-/// against the real file size, so this bounds every allocation a loader makes).
-inline constexpr uint64_t kMaxFileBytes = uint64_t{4} << 30;  // 4 GiB
-/// Largest vertex / index count any loader accepts (a uint32_t index plus headroom).
-inline constexpr uint64_t kMaxElements = uint64_t{1} << 31;
-
 /// Sends \p message to options.warn, or prints "warning: <message>" to stderr when unset.
 void warn(const LoadOptions& options, const std::string& message);
 
 /// Throws specula::Error "<file>: ..." unless \p path is an existing regular file of at most
-/// kMaxFileBytes; returns its size.
-uint64_t checked_file_size(const std::filesystem::path& path);
+/// limits.max_file_bytes; returns its size. (Counts inside a file are 64-bit checked against
+/// the real file size, so this bounds every allocation a loader makes.)
+uint64_t checked_file_size(const std::filesystem::path& path, const InputLimits& limits);
 
 /// Reads a whole file (after checked_file_size).
-std::string read_file(const std::filesystem::path& path);
+std::string read_file(const std::filesystem::path& path, const InputLimits& limits);
+
+/// What check_elements counts.
+enum class Elements : uint8_t { Vertices, Indices };
+
+/// Throws file_error(file, where + ...) when \p count vertices or triangle indices exceed
+/// limits.max_elements, naming the count, the limit, the memory they would take and the flag.
+/// Call with the scene-wide total a mesh would bring it to, before allocating the mesh.
+void check_elements(const InputLimits& limits, const std::string& file, const std::string& where,
+                    uint64_t count, Elements what);
 
 /// Lower-case extension including the dot (".obj"), or empty.
 std::string lower_extension(const std::filesystem::path& path);

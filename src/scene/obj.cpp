@@ -49,7 +49,7 @@ namespace {
 /// Reads mtllib files only from the OBJ's folder; records a refusal so the loader can throw.
 class ConfinedMaterialReader : public tinyobj::MaterialReader {
  public:
-  explicit ConfinedMaterialReader(fs::path dir) : dir_(std::move(dir)) {}
+  ConfinedMaterialReader(fs::path dir, const InputLimits& limits) : dir_(std::move(dir)), limits_(limits) {}
 
   bool operator()(const std::string& mat_id, std::vector<tinyobj::material_t>* materials,
                   std::map<std::string, int>* mat_map, std::string* warn,
@@ -65,8 +65,8 @@ class ConfinedMaterialReader : public tinyobj::MaterialReader {
       if (warn) *warn += "material library '" + mat_id + "' not found in " + dir_.string() + "\n";
       return false;
     }
-    if (fs::file_size(p, ec) > (uint64_t{256} << 20)) {
-      if (refusal.empty()) refusal = "mtllib '" + mat_id + "' is larger than 256 MiB";
+    if (const uintmax_t size = fs::file_size(p, ec); !ec && size > limits_.max_file_bytes) {
+      if (refusal.empty()) refusal = "mtllib '" + mat_id + "': " + file_size_refusal(size, limits_);
       return false;
     }
     std::ifstream in(p, std::ios::binary);
@@ -82,6 +82,7 @@ class ConfinedMaterialReader : public tinyobj::MaterialReader {
 
  private:
   fs::path dir_;
+  InputLimits limits_;
 };
 
 float clamp01(double v) { return static_cast<float>(std::clamp(std::isfinite(v) ? v : 0.0, 0.0, 1.0)); }
@@ -165,7 +166,8 @@ void for_each_line(const std::string& text, Fn&& fn) {
 }
 
 /// Indices of the "v" lines that contain a nan / inf token (tinyobjloader turns those into 0).
-std::vector<size_t> non_finite_vertices(const std::string& text) {
+/// \p vertex_lines is set to the number of "v" lines.
+std::vector<size_t> non_finite_vertices(const std::string& text, size_t& vertex_lines) {
   std::vector<size_t> out;
   size_t vertex = 0;
   for_each_line(text, [&](size_t i, size_t end) {
@@ -184,6 +186,7 @@ std::vector<size_t> non_finite_vertices(const std::string& text) {
     if (bad) out.push_back(vertex);
     ++vertex;
   });
+  vertex_lines = vertex;
   return out;
 }
 
@@ -201,12 +204,15 @@ void comment_out_skin_weights(std::string& text) {
 
 Scene load_obj(const fs::path& path, const LoadOptions& options) {
   const std::string file = path.string();
-  std::string text = detail::read_file(path);
-  const std::vector<size_t> non_finite = non_finite_vertices(text);
+  std::string text = detail::read_file(path, options.limits);
+  size_t vertex_lines = 0;
+  const std::vector<size_t> non_finite = non_finite_vertices(text, vertex_lines);
+  // Before tinyobjloader allocates them: every "v" line becomes a vertex.
+  detail::check_elements(options.limits, file, "", vertex_lines, detail::Elements::Vertices);
   comment_out_skin_weights(text);
   std::istringstream in(std::move(text));  // C++20: no copy
 
-  ConfinedMaterialReader reader(path.parent_path());
+  ConfinedMaterialReader reader(path.parent_path(), options.limits);
   tinyobj::attrib_t attrib;
   std::vector<tinyobj::shape_t> shapes;
   std::vector<tinyobj::material_t> obj_materials;
@@ -293,8 +299,14 @@ Scene load_obj(const fs::path& path, const LoadOptions& options) {
       std::sort(keys.begin(), keys.end());
       keys.erase(std::unique(keys.begin(), keys.end()), keys.end());
     }
-    if (keys.size() >= detail::kMaxElements)
-      throw file_error(file, "shape '" + shape.name + "' has too many vertices");
+    const std::string shape_where = shape.name.empty() ? std::string() : "shape '" + shape.name + "': ";
+    detail::check_elements(options.limits, file, shape_where, scene.positions.size() + keys.size(),
+                           detail::Elements::Vertices);
+    uint64_t fanned = 0;  // indices after fan triangulation: 3 (n - 2) per n-gon
+    for (unsigned char n : mesh.num_face_vertices)
+      if (n >= 3) fanned += 3 * (uint64_t{n} - 2);
+    detail::check_elements(options.limits, file, shape_where, scene.indices.size() + fanned,
+                           detail::Elements::Indices);
 
     detail::MeshData md;
     md.name = shape.name.empty() ? scene.name : shape.name;
@@ -334,8 +346,6 @@ Scene load_obj(const fs::path& path, const LoadOptions& options) {
     }
     face_base += mesh.num_face_vertices.size();
     if (md.indices.empty()) continue;
-    if (md.indices.size() >= detail::kMaxElements)
-      throw file_error(file, "shape '" + shape.name + "' has too many triangles");
     const uint32_t first_mat = md.material_ids.front();
     detail::append_mesh(scene, std::move(md), first_mat, Mat4::identity(), dropped);
   }

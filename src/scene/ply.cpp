@@ -6,7 +6,8 @@
 // strip, odd triangles of a strip have their first two vertices swapped to keep the winding).
 // Every other element and property, lists included, is skipped. The whole file is in memory and
 // every read is bounds-checked; element counts are checked against the bytes left in the file
-// (64-bit arithmetic) before anything is reserved, and vertex / index counts are limited to 2^31.
+// (64-bit arithmetic) before anything is reserved, and vertex / index counts are limited
+// (InputLimits::max_elements, 2^31 by default).
 // Errors name the file, the element, the element's index and a line (ascii) or byte offset.
 #include <algorithm>
 #include <array>
@@ -87,7 +88,7 @@ class PlyReader {
       : path_(path), file_(path.string()), options_(options) {}
 
   Scene load() {
-    data_ = detail::read_file(path_);
+    data_ = detail::read_file(path_, options_.limits);
     parse_header();
     read_body();
     if (polygons_skipped_ > 0)
@@ -199,8 +200,7 @@ class PlyReader {
       if (e.name == "vertex") {
         if (have_vertex) fail("element 'vertex' declared twice");
         have_vertex = true;
-        if (e.count >= detail::kMaxElements)
-          fail("element 'vertex': " + with_thousands(e.count) + " vertices exceed the limit of 2^31");
+        detail::check_elements(options_.limits, file_, "element 'vertex': ", e.count, detail::Elements::Vertices);
         vertex_count_ = e.count;
         const auto find = [&](const char* n) -> int {
           for (size_t i = 0; i < e.props.size(); ++i)
@@ -427,8 +427,7 @@ class PlyReader {
   }
 
   void add_triangle(uint32_t a, uint32_t b, uint32_t c, const Element& e, uint64_t i) {
-    if (mesh_.indices.size() + 3 > detail::kMaxElements)
-      fail(where(e, i) + "more than 2^31 triangle indices");
+    detail::check_elements(options_.limits, file_, where(e, i), mesh_.indices.size() + 3, detail::Elements::Indices);
     mesh_.indices.push_back(a);
     mesh_.indices.push_back(b);
     mesh_.indices.push_back(c);
