@@ -1,21 +1,25 @@
 // Sparse voxel octree traversal: closest hit and transmittance (owner: voxel tracers).
 //
-// Revelles et al.'s parametric traversal as seed 000 extends it. Per node (one stack frame
-// per level): the distances t0 / t1 at which the ray crosses the node's near / far plane of
-// each axis, and tm at which it crosses the mid plane, all computed as (integer plane - o) *
+// Revelles et al.'s parametric traversal as seed 000 extends it, driven by one running
+// parameter t instead of per-node child lists. Every node keeps the distances of its three
+// mid planes (tm) and of its three far planes (nf), all computed as (integer plane - o) *
 // (1 / d) in the grid's local frame, exactly as the shared kernel (voxel_brute.h) computes
 // voxel boundaries, so the nodes visited and the hits found are bit-identical to the grid's
-// and the brute force's. Directions are mirrored to positive: child slots are numbered along
-// the ray (bit i set = the far half of axis i) and `slot ^ mirror` is the real child index.
-// The first child has bit i set when the mid plane i is crossed at or before the node's entry
-// distance; the following ones cross the remaining mid planes inside the node in increasing tm
-// order. That list (at most 4 slots) is built once per node from the three sorted tm values,
-// filtered by the child mask and kept in the node's frame (4 bits per slot), so popping a
-// child resumes with the next occupied slot without recomputing anything. Children whose
-// interval is empty (the ray only touches them) are skipped, which is exactly the kernel's
-// "positive length" rule. Fixed axes (direction +-0) have t0 = -inf, t1 = +inf and tm = -inf
-// or +inf depending on which side of the mid plane the origin lies (half-open), so they
-// select one half and never generate a crossing.
+// and the brute force's. At time t the ray is in the child whose slot (in ray order, bit i
+// set = the far half of axis i along the ray) has bit i set exactly when tm[i] <= t; `slot ^
+// mirror` is the real child index (seed 000's mirroring). That child's far planes are nf[i]
+// on its far axes and tm[i] on the others, so its exit time tx is one select and one
+// horizontal minimum. An occupied child is entered (or, at the leaf level, tested with the
+// kernel); an empty one, or a leaf that was not hit, is stepped over by setting t = tx, and
+// nodes whose exit time is reached are popped. The child selected at t always has t < tx,
+// and t is exactly its entry distance, so every voxel the kernel says is crossed (positive
+// length) is visited, in ray order, and no other. Fixed axes (direction +-0) use 1/d = +inf
+// here: a plane at or behind the origin gives -inf (0 * inf = NaN is mapped to -inf), one
+// ahead of it +inf, which is the kernel's half-open rule. The fourth lane carries tmax (the
+// plane vector's lane 3 is 0 and o's is -tmax), so the exit minimum includes it for free.
+// One stack frame per level (depth <= 21); SSE2 only (the x86-64 baseline).
+#include <immintrin.h>
+
 #include <array>
 #include <bit>
 #include <cmath>
@@ -35,6 +39,21 @@ constexpr auto kPopcount8 = [] {
   for (unsigned i = 0; i < 256; ++i) t[i] = static_cast<uint8_t>(std::popcount(i));
   return t;
 }();
+
+/// Lane i all ones when bit i of the index is set (lane 3 always zero).
+alignas(16) constexpr uint32_t kSlotLanes[8][4] = {
+    {0, 0, 0, 0}, {~0u, 0, 0, 0}, {0, ~0u, 0, 0}, {~0u, ~0u, 0, 0},
+    {0, 0, ~0u, 0}, {~0u, 0, ~0u, 0}, {0, ~0u, ~0u, 0}, {~0u, ~0u, ~0u, 0},
+};
+
+inline __m128i slot_lanes(uint32_t slot) {
+  return _mm_load_si128(reinterpret_cast<const __m128i*>(kSlotLanes[slot]));
+}
+
+inline float hmin(__m128 v) {
+  const __m128 m = _mm_min_ps(v, _mm_shuffle_ps(v, v, _MM_SHUFFLE(2, 3, 0, 1)));
+  return _mm_cvtss_f32(_mm_min_ps(m, _mm_movehl_ps(m, m)));
+}
 }  // namespace
 
 using voxel::CellHit;
@@ -60,117 +79,91 @@ class SvoTraversal {
     const int leaf_level = (s.lod_ > 0 && s.lod_ < depth) ? s.lod_ : depth;
     const int shift = depth - leaf_level;
     const LocalRay rl = shift > 0 ? voxel::coarsen(r, shift) : r;
-    const uint32_t res = 1u << depth;
+    const int32_t res = int32_t{1} << depth;
     const uint32_t mirror = r.mirror;
     const uint32_t n_leaves = static_cast<uint32_t>(s.leaf_attrs_.size());
     const SvoNode* nodes = s.nodes_.data();
 
-    struct Frame {
-      float t0[3], t1[3], tm[3];
-      uint32_t pos[3];
+    const auto inv_of = [&r](int i) { return ((r.fixed >> i) & 1u) ? kInf : r.inv[i]; };
+    const __m128 o = _mm_setr_ps(r.o[0], r.o[1], r.o[2], -r.tmax);
+    const __m128 inv = _mm_setr_ps(inv_of(0), inv_of(1), inv_of(2), 1.0f);
+    const __m128 neg_inf = _mm_set1_ps(-kInf);
+    // Distances of the integer planes p (lanes 0-2; lane 3 must be 0 and gives tmax).
+    const auto plane_t = [&](__m128i p) {
+      return _mm_max_ps(_mm_mul_ps(_mm_sub_ps(_mm_cvtepi32_ps(p), o), inv), neg_inf);
+    };
+    const __m128i mirror_lanes = slot_lanes(mirror);
+    const __m128i xyz = slot_lanes(7u);
+    const __m128i res_lanes = _mm_setr_epi32(res, res, res, 0);
+
+    struct alignas(16) Frame {
+      __m128 tm;          ///< mid planes (lane 3: tmax)
+      __m128 nf;          ///< far planes along the ray (lane 3: tmax)
+      __m128i corner;     ///< minimum corner in voxels (lane 3: 0)
+      float nx;           ///< exit distance: min(nf)
       uint32_t first_child, mask;
-      uint32_t todo;  ///< slots still to visit, 4 bits each (slot | 8), nearest first
     };
     Frame stack[kMaxVoxelDepth + 1];
     Frame* f = stack;
-    for (int i = 0; i < 3; ++i) {
-      f->pos[i] = 0;
-      if ((r.fixed >> i) & 1u) {
-        if (!(0.0f <= r.o[i] && r.o[i] < static_cast<float>(res))) return;
-        f->t0[i] = -kInf;
-        f->t1[i] = kInf;
-      } else {
-        const bool neg = (mirror >> i) & 1u;
-        f->t0[i] = ((neg ? static_cast<float>(res) : 0.0f) - r.o[i]) * r.inv[i];
-        f->t1[i] = ((neg ? 0.0f : static_cast<float>(res)) - r.o[i]) * r.inv[i];
-      }
-    }
+
+    // Root: near planes at 0 (res on mirrored axes), far planes at res (0 on mirrored axes).
+    const __m128i root_near = _mm_and_si128(mirror_lanes, res_lanes);
+    const __m128i root_far = _mm_andnot_si128(mirror_lanes, res_lanes);
+    alignas(16) float near[4];
+    _mm_store_ps(near, plane_t(root_near));
+    float t = std::max(std::max(near[0], near[1]), std::max(near[2], r.tmin));
+    f->nf = plane_t(root_far);
+    f->nx = hmin(f->nf);
+    if (!(t < f->nx)) return;
+    f->corner = _mm_setzero_si128();
+    int level = 0;
+    int32_t half = res >> 1;  // side of the current node's children, in voxels
+    f->tm = plane_t(_mm_and_si128(_mm_set1_epi32(half), xyz));
     f->first_child = nodes[0].first_child;
     f->mask = nodes[0].mask;
+    if constexpr (kStats) ++stats.nodes_visited;
 
-    int level = 0;
-    uint32_t half = res >> 1;  // side of the current node's children, in voxels
     for (;;) {
-      // Entering node f: mid planes, then the slots the ray crosses in order (the first one,
-      // then across each mid plane crossed inside the node, nearest first), keeping the
-      // occupied ones.
-      if constexpr (kStats) ++stats.nodes_visited;
-      {
-        const float te = std::max(std::max(f->t0[0], f->t0[1]), std::max(f->t0[2], r.tmin));
-        const float tx = std::min(std::min(f->t1[0], f->t1[1]), std::min(f->t1[2], r.tmax));
-        if (!(te < tx)) goto pop;  // only the root can get here (nodes are entered with te < tx)
-        float tm[3];
-        for (int i = 0; i < 3; ++i) {
-          const float mid = static_cast<float>(f->pos[i] + half);
-          tm[i] = ((r.fixed >> i) & 1u) ? (r.o[i] >= mid ? -kInf : kInf) : (mid - r.o[i]) * r.inv[i];
-          f->tm[i] = tm[i];
-        }
-        uint32_t a = (tm[0] <= te ? 1u : 0u) | (tm[1] <= te ? 2u : 0u) | (tm[2] <= te ? 4u : 0u);
-        int o0 = 0, o1 = 1, o2 = 2;
-        if (tm[o1] < tm[o0]) std::swap(o0, o1);
-        if (tm[o2] < tm[o1]) std::swap(o1, o2);
-        if (tm[o1] < tm[o0]) std::swap(o0, o1);
-        const uint32_t occ = f->mask;
-        uint32_t todo = 0, bits = 0;
-        const auto add = [&](uint32_t slot) {
-          if ((occ >> (slot ^ mirror)) & 1u) {
-            todo |= (slot | 8u) << bits;
-            bits += 4;
-          }
-        };
-        add(a);
-        for (const int o : {o0, o1, o2}) {
-          if (!((a >> o) & 1u) && tm[o] < tx) {
-            a |= 1u << o;
-            add(a);
-          }
-        }
-        f->todo = todo;
-      }
-      for (;;) {
-        while (f->todo == 0) {
-        pop:
-          if (level == 0) return;
-          --f;
-          --level;
-          half <<= 1;
-        }
-        const uint32_t a = f->todo & 7u;
-        f->todo >>= 4;
-        float ct0[3], ct1[3];
-        for (int i = 0; i < 3; ++i) {
-          const bool far = (a >> i) & 1u;
-          ct0[i] = far ? f->tm[i] : f->t0[i];
-          ct1[i] = far ? f->t1[i] : f->tm[i];
-        }
-        const float cte = std::max(std::max(ct0[0], ct0[1]), std::max(ct0[2], r.tmin));
-        const float ctx = std::min(std::min(ct1[0], ct1[1]), std::min(ct1[2], r.tmax));
-        if (!(cte < ctx)) continue;
-        const uint32_t real = a ^ mirror;
+      // The child the ray is in at t, and when it leaves it.
+      const __m128 le = _mm_cmple_ps(f->tm, _mm_set1_ps(t));
+      const uint32_t slot = static_cast<uint32_t>(_mm_movemask_ps(le)) & 7u;
+      const __m128 cf = _mm_or_ps(_mm_and_ps(le, f->nf), _mm_andnot_ps(le, f->tm));
+      const float tx = hmin(cf);
+      const uint32_t real = slot ^ mirror;
+      if ((f->mask >> real) & 1u) {
         const uint32_t child = f->first_child + kPopcount8[f->mask & ((1u << real) - 1u)];
-        uint32_t pos[3];
-        for (int i = 0; i < 3; ++i) pos[i] = f->pos[i] + (((real >> i) & 1u) ? half : 0u);
+        const __m128i corner = _mm_add_epi32(f->corner, _mm_and_si128(slot_lanes(real), _mm_set1_epi32(half)));
         if (level + 1 == leaf_level) {
           if constexpr (kStats) ++stats.triangles_tested;
-          const uint32_t cell[3] = {pos[0] >> shift, pos[1] >> shift, pos[2] >> shift};
-          const bool stop = shift == 0 ? leaf(rl, cell, s.leaf_attrs_[child], child)
-                                       : leaf(rl, cell, s.inner_attrs_[child], n_leaves + child);
+          alignas(16) uint32_t c[4];
+          _mm_store_si128(reinterpret_cast<__m128i*>(c), _mm_srli_epi32(corner, shift));
+          const bool stop = shift == 0 ? leaf(rl, c, s.leaf_attrs_[child], child)
+                                       : leaf(rl, c, s.inner_attrs_[child], n_leaves + child);
           if (stop) return;
+        } else {
+          // Enter the child at the same t.
+          Frame* ch = f + 1;
+          ch->corner = corner;
+          ch->nf = cf;
+          ch->nx = tx;
+          half >>= 1;
+          ch->tm = plane_t(_mm_add_epi32(corner, _mm_and_si128(_mm_set1_epi32(half), xyz)));
+          const SvoNode node = nodes[child];
+          ch->first_child = node.first_child;
+          ch->mask = node.mask;
+          f = ch;
+          ++level;
+          if constexpr (kStats) ++stats.nodes_visited;
           continue;
         }
-        Frame* c = f + 1;
-        for (int i = 0; i < 3; ++i) {
-          c->t0[i] = ct0[i];
-          c->t1[i] = ct1[i];
-          c->pos[i] = pos[i];
-        }
-        const SvoNode node = nodes[child];
-        c->first_child = node.first_child;
-        c->mask = node.mask;
-        f = c;
-        ++level;
-        half >>= 1;
-        break;  // enter the child
+      }
+      // Step over the child; leave the nodes whose exit is reached.
+      t = tx;
+      while (!(t < f->nx)) {
+        if (level == 0) return;
+        --f;
+        --level;
+        half <<= 1;
       }
     }
   }
