@@ -20,12 +20,15 @@
 // One stack frame per level (depth <= 21); SSE2 only (the x86-64 baseline).
 #include <immintrin.h>
 
+#include <algorithm>
 #include <array>
+#include <atomic>
 #include <bit>
 #include <cmath>
 #include <cstdint>
 #include <span>
 #include <utility>
+#include <vector>
 
 #include "specula/error.h"
 #include "specula/svo.h"
@@ -59,145 +62,349 @@ inline float hmin(__m128 v) {
 using voxel::CellHit;
 using voxel::LocalRay;
 
+/// What the traversals read of an octree.
+struct SvoView {
+  const SvoNode* nodes;
+  const VoxelAttributes* leaf_attrs;
+  const VoxelAttributes* inner_attrs;
+  uint32_t n_leaves;
+  int depth;       ///< grid depth (planes are in voxels of this level)
+  int leaf_level;  ///< level whose nodes are the leaves (depth, or the lod level)
+  int shift;       ///< depth - leaf_level
+  VoxelHitMode mode;
+
+  const VoxelAttributes& attrs(uint32_t child) const { return shift == 0 ? leaf_attrs[child] : inner_attrs[child]; }
+  uint32_t prim(uint32_t child) const { return shift == 0 ? child : n_leaves + child; }
+};
+
+/// The single-ray traversal of the subtree of node \p node (level \p level, minimum corner
+/// \p c in voxels): calls leaf(cell, child) for the leaves the ray crosses in ray order
+/// (cell in the leaf level's integer coordinates, child = index of the leaf in its level);
+/// returns true as soon as leaf() does.
+template <bool kStats, class Leaf>
+bool walk_node(const SvoView& v, const LocalRay& r, int level, const int32_t c[3], uint32_t node, TraceStats& stats,
+               Leaf&& leaf) {
+  const int start_level = level;
+  const int32_t res = int32_t{1} << v.depth;
+  const uint32_t mirror = r.mirror;
+  const SvoNode* nodes = v.nodes;
+
+  const auto inv_of = [&r](int i) { return ((r.fixed >> i) & 1u) ? kInf : r.inv[i]; };
+  const __m128 o = _mm_setr_ps(r.o[0], r.o[1], r.o[2], -r.tmax);
+  const __m128 inv = _mm_setr_ps(inv_of(0), inv_of(1), inv_of(2), 1.0f);
+  const __m128 neg_inf = _mm_set1_ps(-kInf);
+  // Distances of the integer planes p (lanes 0-2; lane 3 must be 0 and gives tmax).
+  const auto plane_t = [&](__m128i p) {
+    return _mm_max_ps(_mm_mul_ps(_mm_sub_ps(_mm_cvtepi32_ps(p), o), inv), neg_inf);
+  };
+  const __m128i mirror_lanes = slot_lanes(mirror);
+  const __m128i xyz = slot_lanes(7u);
+
+  struct alignas(16) Frame {
+    __m128 tm;          ///< mid planes (lane 3: tmax)
+    __m128 nf;          ///< far planes along the ray (lane 3: tmax)
+    __m128i corner;     ///< minimum corner in voxels (lane 3: 0)
+    float nx;           ///< exit distance: min(nf)
+    uint32_t first_child, mask;
+  };
+  Frame stack[kMaxVoxelDepth + 1];
+  Frame* f = stack;
+
+  // The start node: near planes at its minimum corner (maximum on mirrored axes), far planes
+  // opposite.
+  const __m128i corner = _mm_setr_epi32(c[0], c[1], c[2], 0);
+  const __m128i side = _mm_and_si128(_mm_set1_epi32(res >> level), xyz);
+  alignas(16) float near[4];
+  _mm_store_ps(near, plane_t(_mm_add_epi32(corner, _mm_and_si128(mirror_lanes, side))));
+  float t = std::max(std::max(near[0], near[1]), std::max(near[2], r.tmin));
+  f->nf = plane_t(_mm_add_epi32(corner, _mm_andnot_si128(mirror_lanes, side)));
+  f->nx = hmin(f->nf);
+  if (!(t < f->nx)) return false;
+  f->corner = corner;
+  int32_t half = (res >> level) >> 1;  // side of the current node's children, in voxels
+  f->tm = plane_t(_mm_add_epi32(corner, _mm_and_si128(_mm_set1_epi32(half), xyz)));
+  f->first_child = nodes[node].first_child;
+  f->mask = nodes[node].mask;
+  if constexpr (kStats) ++stats.nodes_visited;
+
+  for (;;) {
+    // The child the ray is in at t, and when it leaves it.
+    const __m128 le = _mm_cmple_ps(f->tm, _mm_set1_ps(t));
+    const uint32_t slot = static_cast<uint32_t>(_mm_movemask_ps(le)) & 7u;
+    const __m128 cf = _mm_or_ps(_mm_and_ps(le, f->nf), _mm_andnot_ps(le, f->tm));
+    const float tx = hmin(cf);
+    const uint32_t real = slot ^ mirror;
+    if ((f->mask >> real) & 1u) {
+      const uint32_t child = f->first_child + kPopcount8[f->mask & ((1u << real) - 1u)];
+      const __m128i cc = _mm_add_epi32(f->corner, _mm_and_si128(slot_lanes(real), _mm_set1_epi32(half)));
+      if (level + 1 == v.leaf_level) {
+        if constexpr (kStats) ++stats.triangles_tested;
+        alignas(16) uint32_t cell[4];
+        _mm_store_si128(reinterpret_cast<__m128i*>(cell), _mm_srli_epi32(cc, v.shift));
+        if (leaf(static_cast<const uint32_t*>(cell), child)) return true;
+      } else {
+        // Enter the child at the same t.
+        Frame* ch = f + 1;
+        ch->corner = cc;
+        ch->nf = cf;
+        ch->nx = tx;
+        half >>= 1;
+        ch->tm = plane_t(_mm_add_epi32(cc, _mm_and_si128(_mm_set1_epi32(half), xyz)));
+        const SvoNode n = nodes[child];
+        ch->first_child = n.first_child;
+        ch->mask = n.mask;
+        f = ch;
+        ++level;
+        if constexpr (kStats) ++stats.nodes_visited;
+        continue;
+      }
+    }
+    // Step over the child; leave the nodes whose exit is reached.
+    t = tx;
+    while (!(t < f->nx)) {
+      if (level == start_level) return false;
+      --f;
+      --level;
+      half <<= 1;
+    }
+  }
+}
+
+/// Up to 16 rays of one direction octant (same mirror) in structure-of-arrays form, in the
+/// grid's local frame; fixed axes have inv = +inf (see the file comment).
+struct alignas(64) PacketRays {
+  float o[3][16];
+  float inv[3][16];
+  float tmin[16];
+  float tmax[16];
+};
+
+}  // namespace specula
+
+// The packet kernels: one source, compiled per vector width and instruction set.
+#define SVO_NS svo_avx2
+#define SVO_TARGET __attribute__((target("avx2")))
+#define SVO_WIDTH 8
+#define SVO_VF __m256
+#define SVO_LOAD _mm256_load_ps
+#define SVO_SET1 _mm256_set1_ps
+#define SVO_SUB _mm256_sub_ps
+#define SVO_MUL _mm256_mul_ps
+#define SVO_MIN _mm256_min_ps
+#define SVO_MAX _mm256_max_ps
+#define SVO_LT(a, b) static_cast<uint32_t>(_mm256_movemask_ps(_mm256_cmp_ps((a), (b), _CMP_LT_OQ)))
+#include "voxel/svo_packet.inc"
+#undef SVO_NS
+#undef SVO_TARGET
+#undef SVO_WIDTH
+#undef SVO_VF
+#undef SVO_LOAD
+#undef SVO_SET1
+#undef SVO_SUB
+#undef SVO_MUL
+#undef SVO_MIN
+#undef SVO_MAX
+#undef SVO_LT
+
+#define SVO_NS svo_avx512
+#define SVO_TARGET __attribute__((target("avx2,avx512f")))
+#define SVO_WIDTH 16
+#define SVO_VF __m512
+#define SVO_LOAD _mm512_load_ps
+#define SVO_SET1 _mm512_set1_ps
+#define SVO_SUB _mm512_sub_ps
+#define SVO_MUL _mm512_mul_ps
+// Full-mask zero-masking max / min: GCC 12's plain _mm512_max_ps merges into an undefined
+// register and trips -Wmaybe-uninitialized; with every lane set the result is the same.
+#define SVO_MIN(a, b) _mm512_maskz_min_ps(0xFFFF, (a), (b))
+#define SVO_MAX(a, b) _mm512_maskz_max_ps(0xFFFF, (a), (b))
+#define SVO_LT(a, b) static_cast<uint32_t>(_mm512_cmp_ps_mask((a), (b), _CMP_LT_OQ))
+#include "voxel/svo_packet.inc"
+#undef SVO_NS
+#undef SVO_TARGET
+#undef SVO_WIDTH
+#undef SVO_VF
+#undef SVO_LOAD
+#undef SVO_SET1
+#undef SVO_SUB
+#undef SVO_MUL
+#undef SVO_MIN
+#undef SVO_MAX
+#undef SVO_LT
+
+namespace specula {
+
+namespace voxel {
+namespace {
+std::atomic<int> g_packet_width_limit{16};
+
+int cpu_packet_width() {
+  static const int width = [] {
+    if (__builtin_cpu_supports("avx2") && __builtin_cpu_supports("avx512f")) return 16;
+    if (__builtin_cpu_supports("avx2")) return 8;
+    return 1;
+  }();
+  return width;
+}
+}  // namespace
+
+int svo_packet_width() { return std::min(cpu_packet_width(), g_packet_width_limit.load(std::memory_order_relaxed)); }
+void set_svo_packet_width_limit(int width) { g_packet_width_limit.store(std::max(width, 1), std::memory_order_relaxed); }
+}  // namespace voxel
+
 class SvoTraversal {
  public:
-  /// Visits the leaves (voxels, or nodes at the lod level) the ray crosses, in ray order,
-  /// calling leaf(lr, cell, attrs, prim) with the ray in the leaf level's frame and the leaf's
-  /// integer cell; stops when it returns true.
+  static SvoView view(const SparseVoxelOctree& s) {
+    const int depth = s.grid_.depth;
+    const int leaf_level = (s.lod_ > 0 && s.lod_ < depth) ? s.lod_ : depth;
+    return SvoView{s.nodes_.data(), s.leaf_attrs_.data(), s.inner_attrs_.data(),
+                   static_cast<uint32_t>(s.leaf_attrs_.size()), depth, leaf_level, depth - leaf_level, s.mode_};
+  }
+
+  /// One ray: calls leaf(lr, cell, attrs, prim) for the leaves (voxels, or nodes at the lod
+  /// level) it crosses, in ray order, with the ray in the leaf level's frame; stops when leaf
+  /// returns true.
   template <bool kStats, class Leaf>
   static void walk(const SparseVoxelOctree& s, const Ray& ray, TraceStats& stats, Leaf&& leaf) {
     if constexpr (kStats) ++stats.rays;
     LocalRay r;
     if (s.leaf_attrs_.empty() || !voxel::make_local_ray(ray, s.grid_, r)) return;
-    const int depth = s.grid_.depth;
-    if (depth == 0) {
+    if (s.grid_.depth == 0) {
       const uint32_t cell[3] = {0, 0, 0};
       if constexpr (kStats) ++stats.triangles_tested;
       leaf(r, cell, s.leaf_attrs_[0], 0u);
       return;
     }
-    const int leaf_level = (s.lod_ > 0 && s.lod_ < depth) ? s.lod_ : depth;
-    const int shift = depth - leaf_level;
-    const LocalRay rl = shift > 0 ? voxel::coarsen(r, shift) : r;
-    const int32_t res = int32_t{1} << depth;
-    const uint32_t mirror = r.mirror;
-    const uint32_t n_leaves = static_cast<uint32_t>(s.leaf_attrs_.size());
-    const SvoNode* nodes = s.nodes_.data();
+    const SvoView v = view(s);
+    const LocalRay rl = v.shift > 0 ? voxel::coarsen(r, v.shift) : r;
+    const int32_t root[3] = {0, 0, 0};
+    walk_node<kStats>(v, r, 0, root, 0, stats,
+                      [&](const uint32_t* cell, uint32_t child) { return leaf(rl, cell, v.attrs(child), v.prim(child)); });
+  }
 
-    const auto inv_of = [&r](int i) { return ((r.fixed >> i) & 1u) ? kInf : r.inv[i]; };
-    const __m128 o = _mm_setr_ps(r.o[0], r.o[1], r.o[2], -r.tmax);
-    const __m128 inv = _mm_setr_ps(inv_of(0), inv_of(1), inv_of(2), 1.0f);
-    const __m128 neg_inf = _mm_set1_ps(-kInf);
-    // Distances of the integer planes p (lanes 0-2; lane 3 must be 0 and gives tmax).
-    const auto plane_t = [&](__m128i p) {
-      return _mm_max_ps(_mm_mul_ps(_mm_sub_ps(_mm_cvtepi32_ps(p), o), inv), neg_inf);
+  /// A batch: rays are mapped to the local frame, grouped by direction octant (keeping their
+  /// order, so neighbours in the batch stay neighbours) and traced in packets of the CPU's
+  /// vector width; a lone ray (or a CPU without AVX2) uses the single-ray traversal.
+  /// lane_leaf(i, lr, cell, attrs, prim) is called for ray i (index into the batch) and
+  /// returns true when the ray is done; done(i) is called for rays that miss by definition.
+  template <bool kStats, class LaneLeaf>
+  static void batch(const SparseVoxelOctree& s, std::span<const Ray> rays, TraceStats& stats, LaneLeaf&& lane_leaf) {
+    if constexpr (kStats) stats.rays += rays.size();
+    if (s.leaf_attrs_.empty() || rays.empty()) return;
+    const SvoView v = view(s);
+    struct Scratch {
+      std::vector<LocalRay> local;
+      std::vector<uint32_t> order;
     };
-    const __m128i mirror_lanes = slot_lanes(mirror);
-    const __m128i xyz = slot_lanes(7u);
-    const __m128i res_lanes = _mm_setr_epi32(res, res, res, 0);
+    thread_local Scratch scratch;
+    std::vector<LocalRay>& local = scratch.local;
+    std::vector<uint32_t>& order = scratch.order;
+    local.resize(rays.size());
+    order.resize(rays.size());
+    uint32_t count[9] = {};
+    for (size_t i = 0; i < rays.size(); ++i) {
+      LocalRay& r = local[i];
+      if (!voxel::make_local_ray(rays[i], s.grid_, r)) r.mirror = 8;  // misses by definition
+      ++count[r.mirror];
+    }
+    uint32_t start[9];
+    uint32_t sum = 0;
+    for (int k = 0; k < 9; ++k) {
+      start[k] = sum;
+      sum += count[k];
+    }
+    for (size_t i = 0; i < rays.size(); ++i) order[start[local[i].mirror]++] = static_cast<uint32_t>(i);
+    const uint32_t valid = start[7];  // after the loop start[k] is the end of octant k
 
-    struct alignas(16) Frame {
-      __m128 tm;          ///< mid planes (lane 3: tmax)
-      __m128 nf;          ///< far planes along the ray (lane 3: tmax)
-      __m128i corner;     ///< minimum corner in voxels (lane 3: 0)
-      float nx;           ///< exit distance: min(nf)
-      uint32_t first_child, mask;
+    const int width = s.grid_.depth == 0 ? 1 : voxel::svo_packet_width();
+    const int32_t root[3] = {0, 0, 0};
+    const auto single = [&](uint32_t i) {
+      const LocalRay& r = local[i];
+      if (s.grid_.depth == 0) {
+        const uint32_t cell[3] = {0, 0, 0};
+        if constexpr (kStats) ++stats.triangles_tested;
+        lane_leaf(i, r, cell, s.leaf_attrs_[0], 0u);
+        return;
+      }
+      const LocalRay rl = v.shift > 0 ? voxel::coarsen(r, v.shift) : r;
+      walk_node<kStats>(v, r, 0, root, 0, stats, [&](const uint32_t* cell, uint32_t child) {
+        return lane_leaf(i, rl, cell, v.attrs(child), v.prim(child));
+      });
     };
-    Frame stack[kMaxVoxelDepth + 1];
-    Frame* f = stack;
-
-    // Root: near planes at 0 (res on mirrored axes), far planes at res (0 on mirrored axes).
-    const __m128i root_near = _mm_and_si128(mirror_lanes, res_lanes);
-    const __m128i root_far = _mm_andnot_si128(mirror_lanes, res_lanes);
-    alignas(16) float near[4];
-    _mm_store_ps(near, plane_t(root_near));
-    float t = std::max(std::max(near[0], near[1]), std::max(near[2], r.tmin));
-    f->nf = plane_t(root_far);
-    f->nx = hmin(f->nf);
-    if (!(t < f->nx)) return;
-    f->corner = _mm_setzero_si128();
-    int level = 0;
-    int32_t half = res >> 1;  // side of the current node's children, in voxels
-    f->tm = plane_t(_mm_and_si128(_mm_set1_epi32(half), xyz));
-    f->first_child = nodes[0].first_child;
-    f->mask = nodes[0].mask;
-    if constexpr (kStats) ++stats.nodes_visited;
-
-    for (;;) {
-      // The child the ray is in at t, and when it leaves it.
-      const __m128 le = _mm_cmple_ps(f->tm, _mm_set1_ps(t));
-      const uint32_t slot = static_cast<uint32_t>(_mm_movemask_ps(le)) & 7u;
-      const __m128 cf = _mm_or_ps(_mm_and_ps(le, f->nf), _mm_andnot_ps(le, f->tm));
-      const float tx = hmin(cf);
-      const uint32_t real = slot ^ mirror;
-      if ((f->mask >> real) & 1u) {
-        const uint32_t child = f->first_child + kPopcount8[f->mask & ((1u << real) - 1u)];
-        const __m128i corner = _mm_add_epi32(f->corner, _mm_and_si128(slot_lanes(real), _mm_set1_epi32(half)));
-        if (level + 1 == leaf_level) {
-          if constexpr (kStats) ++stats.triangles_tested;
-          alignas(16) uint32_t c[4];
-          _mm_store_si128(reinterpret_cast<__m128i*>(c), _mm_srli_epi32(corner, shift));
-          const bool stop = shift == 0 ? leaf(rl, c, s.leaf_attrs_[child], child)
-                                       : leaf(rl, c, s.inner_attrs_[child], n_leaves + child);
-          if (stop) return;
-        } else {
-          // Enter the child at the same t.
-          Frame* ch = f + 1;
-          ch->corner = corner;
-          ch->nf = cf;
-          ch->nx = tx;
-          half >>= 1;
-          ch->tm = plane_t(_mm_add_epi32(corner, _mm_and_si128(_mm_set1_epi32(half), xyz)));
-          const SvoNode node = nodes[child];
-          ch->first_child = node.first_child;
-          ch->mask = node.mask;
-          f = ch;
-          ++level;
-          if constexpr (kStats) ++stats.nodes_visited;
-          continue;
+    if (width <= 1) {
+      for (uint32_t k = 0; k < valid; ++k) single(order[k]);
+      return;
+    }
+    PacketRays p;
+    LocalRay rl[16];
+    uint32_t idx[16];
+    for (uint32_t begin = 0, octant_end = 0; begin < valid; begin = std::min(begin + static_cast<uint32_t>(width), octant_end)) {
+      // Packets never straddle two octants.
+      const uint32_t mirror = local[order[begin]].mirror;
+      octant_end = start[mirror];
+      const uint32_t n = std::min(static_cast<uint32_t>(width), octant_end - begin);
+      if (n == 1) {
+        single(order[begin]);
+        continue;
+      }
+      for (int j = 0; j < width; ++j) {
+        const uint32_t i = order[begin + std::min(static_cast<uint32_t>(j), n - 1)];
+        const LocalRay& r = local[i];
+        idx[j] = i;
+        for (int a = 0; a < 3; ++a) {
+          p.o[a][j] = r.o[a];
+          p.inv[a][j] = ((r.fixed >> a) & 1u) ? kInf : r.inv[a];
         }
+        p.tmin[j] = r.tmin;
+        p.tmax[j] = r.tmax;
+        if (j < static_cast<int>(n)) rl[j] = v.shift > 0 ? voxel::coarsen(r, v.shift) : r;
       }
-      // Step over the child; leave the nodes whose exit is reached.
-      t = tx;
-      while (!(t < f->nx)) {
-        if (level == 0) return;
-        --f;
-        --level;
-        half <<= 1;
-      }
+      const uint32_t lanes = n >= 32 ? ~0u : (1u << n) - 1u;
+      const auto leaf = [&](int j, const uint32_t* cell, uint32_t child) {
+        return lane_leaf(idx[j], rl[j], cell, v.attrs(child), v.prim(child));
+      };
+      const auto scalar = [&](int j, int level, const int32_t* c, uint32_t node) {
+        return walk_node<kStats>(v, local[idx[j]], level, c, node, stats, [&](const uint32_t* cell, uint32_t child) {
+          return leaf(j, cell, child);
+        });
+      };
+      if (width == 16) svo_avx512::packet_walk<kStats>(v, p, mirror, lanes, stats, leaf, scalar);
+      else svo_avx2::packet_walk<kStats>(v, p, mirror, lanes, stats, leaf, scalar);
     }
   }
 
   template <bool kStats>
-  static Hit closest(const SparseVoxelOctree& s, const Ray& ray, uint32_t skip, TraceStats& stats) {
-    Hit hit;
+  static void closest(const SparseVoxelOctree& s, std::span<const Ray> rays, std::span<const uint32_t> skip,
+                      std::span<Hit> hits, TraceStats& stats) {
+    for (size_t i = 0; i < rays.size(); ++i) hits[i] = Hit{};
     const VoxelHitMode mode = s.mode_;
-    walk<kStats>(s, ray, stats, [&](const LocalRay& r, const uint32_t* cell, const VoxelAttributes& attrs, uint32_t prim) {
+    batch<kStats>(s, rays, stats, [&](uint32_t i, const LocalRay& r, const uint32_t* cell, const VoxelAttributes& attrs,
+                                      uint32_t prim) {
       CellHit h;
-      if (attrs.material == skip || !voxel::hit_cell(r, cell, attrs, mode, h)) return false;
+      if ((!skip.empty() && attrs.material == skip[i]) || !voxel::hit_cell(r, cell, attrs, mode, h)) return false;
+      Hit& hit = hits[i];
       hit.t = h.t;
       hit.prim = prim;
       hit.ng = h.n;
       return true;
     });
-    return hit;
   }
 
   template <bool kStats>
-  static Vec3 transmit(const SparseVoxelOctree& s, const Ray& ray, TraceStats& stats) {
-    Vec3 tr{1.0f, 1.0f, 1.0f};
+  static void transmit(const SparseVoxelOctree& s, std::span<const Ray> rays, std::span<Vec3> out, TraceStats& stats) {
+    for (size_t i = 0; i < rays.size(); ++i) out[i] = Vec3{1.0f, 1.0f, 1.0f};
     const VoxelHitMode mode = s.mode_;
-    walk<kStats>(s, ray, stats, [&](const LocalRay& r, const uint32_t* cell, const VoxelAttributes& attrs, uint32_t) {
+    batch<kStats>(s, rays, stats, [&](uint32_t i, const LocalRay& r, const uint32_t* cell, const VoxelAttributes& attrs,
+                                      uint32_t) {
       CellHit h;
       if (!voxel::hit_cell(r, cell, attrs, mode, h)) return false;
       if (!(attrs.transparency > 0.0f)) {
-        tr = Vec3{};
+        out[i] = Vec3{};
         return true;
       }
-      tr *= Vec3(attrs.transparency);
+      out[i] *= Vec3(attrs.transparency);
       return false;
     });
-    return tr;
   }
 };
 
@@ -205,26 +412,23 @@ void SparseVoxelOctree::intersect_skipping(std::span<const Ray> rays, std::span<
                                            std::span<Hit> hits, TraceStats* stats) const {
   if (hits.size() < rays.size()) throw Error("svo: hits span smaller than rays span");
   if (!skip.empty() && skip.size() < rays.size()) throw Error("svo: skip span smaller than rays span");
-  const auto skip_of = [&](size_t i) { return skip.empty() ? kNoHit : skip[i]; };
+  TraceStats local;
   if (stats) {
-    TraceStats local;
-    for (size_t i = 0; i < rays.size(); ++i) hits[i] = SvoTraversal::closest<true>(*this, rays[i], skip_of(i), local);
+    SvoTraversal::closest<true>(*this, rays, skip, hits, local);
     *stats += local;
   } else {
-    TraceStats unused;
-    for (size_t i = 0; i < rays.size(); ++i) hits[i] = SvoTraversal::closest<false>(*this, rays[i], skip_of(i), unused);
+    SvoTraversal::closest<false>(*this, rays, skip, hits, local);
   }
 }
 
 void SparseVoxelOctree::transmittance(std::span<const Ray> rays, std::span<Vec3> out, TraceStats* stats) const {
   if (out.size() < rays.size()) throw Error("svo: output span smaller than rays span");
+  TraceStats local;
   if (stats) {
-    TraceStats local;
-    for (size_t i = 0; i < rays.size(); ++i) out[i] = SvoTraversal::transmit<true>(*this, rays[i], local);
+    SvoTraversal::transmit<true>(*this, rays, out, local);
     *stats += local;
   } else {
-    TraceStats unused;
-    for (size_t i = 0; i < rays.size(); ++i) out[i] = SvoTraversal::transmit<false>(*this, rays[i], unused);
+    SvoTraversal::transmit<false>(*this, rays, out, local);
   }
 }
 

@@ -168,6 +168,11 @@ inline bool hit_cell(const LocalRay& r, const uint32_t c[3], const VoxelAttribut
   return true;
 }
 
+/// Width of the octree's packet traversal on this CPU (16 with AVX-512, 8 with AVX2, 1 = single
+/// rays only), capped by set_svo_packet_width_limit (tests use it to run every kernel).
+int svo_packet_width();
+void set_svo_packet_width_limit(int width);
+
 /// Throws specula::Error unless \p set is valid for a tracer (see build_voxel_tracer).
 void validate_set(const VoxelSet& set, const char* who);
 
