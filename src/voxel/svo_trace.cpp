@@ -43,6 +43,17 @@ constexpr auto kPopcount8 = [] {
   return t;
 }();
 
+/// kSlotMask[mirror][mask]: bit s set when child s ^ mirror exists (the occupied children as
+/// slots, i.e. in ray order for rays of that direction octant).
+constexpr auto kSlotMask = [] {
+  std::array<std::array<uint8_t, 256>, 8> t{};
+  for (unsigned m = 0; m < 8; ++m)
+    for (unsigned mask = 0; mask < 256; ++mask)
+      for (unsigned s = 0; s < 8; ++s)
+        if ((mask >> (s ^ m)) & 1u) t[m][mask] = static_cast<uint8_t>(t[m][mask] | (1u << s));
+  return t;
+}();
+
 /// Lane i all ones when bit i of the index is set (lane 3 always zero).
 alignas(16) constexpr uint32_t kSlotLanes[8][4] = {
     {0, 0, 0, 0}, {~0u, 0, 0, 0}, {0, ~0u, 0, 0}, {~0u, ~0u, 0, 0},
@@ -183,7 +194,7 @@ struct alignas(64) PacketRays {
 
 // The packet kernels: one source, compiled per vector width and instruction set.
 #define SVO_NS svo_avx2
-#define SVO_TARGET __attribute__((target("avx2")))
+#define SVO_TARGET __attribute__((target("avx2,popcnt,bmi")))
 #define SVO_WIDTH 8
 #define SVO_VF __m256
 #define SVO_LOAD _mm256_load_ps
@@ -207,7 +218,7 @@ struct alignas(64) PacketRays {
 #undef SVO_LT
 
 #define SVO_NS svo_avx512
-#define SVO_TARGET __attribute__((target("avx2,avx512f")))
+#define SVO_TARGET __attribute__((target("avx2,avx512f,popcnt,bmi")))
 #define SVO_WIDTH 16
 #define SVO_VF __m512
 #define SVO_LOAD _mm512_load_ps
@@ -240,8 +251,8 @@ std::atomic<int> g_packet_width_limit{16};
 
 int cpu_packet_width() {
   static const int width = [] {
-    if (__builtin_cpu_supports("avx2") && __builtin_cpu_supports("avx512f")) return 16;
-    if (__builtin_cpu_supports("avx2")) return 8;
+    if (!__builtin_cpu_supports("avx2") || !__builtin_cpu_supports("popcnt") || !__builtin_cpu_supports("bmi")) return 1;
+    return __builtin_cpu_supports("avx512f") ? 16 : 8;
     return 1;
   }();
   return width;
