@@ -407,8 +407,10 @@ class SvoTraversal {
     const VoxelHitMode mode = s.mode_;
     batch<kStats>(s, rays, stats, [&](uint32_t i, const LocalRay& r, const uint32_t* cell, const VoxelAttributes& attrs,
                                       uint32_t) {
+      // Both traversals only report leaves the ray crosses with positive length (the kernel's
+      // own test), so in cube mode every reported voxel is hit.
       CellHit h;
-      if (!voxel::hit_cell(r, cell, attrs, mode, h)) return false;
+      if (mode != VoxelHitMode::Cubes && !voxel::hit_cell(r, cell, attrs, mode, h)) return false;
       if (!(attrs.transparency > 0.0f)) {
         out[i] = Vec3{};
         return true;
