@@ -313,9 +313,10 @@ class SvoTraversal {
     local.resize(rays.size());
     order.resize(rays.size());
     uint32_t count[9] = {};
+    const voxel::LocalFrame frame(s.grid_);
     for (size_t i = 0; i < rays.size(); ++i) {
       LocalRay& r = local[i];
-      if (!voxel::make_local_ray(rays[i], s.grid_, r)) r.mirror = 8;  // misses by definition
+      if (!voxel::make_local_ray(rays[i], frame, r)) r.mirror = 8;  // misses by definition
       ++count[r.mirror];
     }
     uint32_t start[9];
