@@ -359,10 +359,12 @@ class SvoTraversal {
         single(order[begin]);
         continue;
       }
+      uint32_t fixed = 0;  // some lane does not move along some axis
       for (int j = 0; j < width; ++j) {
         const uint32_t i = order[begin + std::min(static_cast<uint32_t>(j), n - 1)];
         const LocalRay& r = local[i];
         idx[j] = i;
+        fixed |= r.fixed;
         for (int a = 0; a < 3; ++a) {
           p.o[a][j] = r.o[a];
           p.inv[a][j] = ((r.fixed >> a) & 1u) ? kInf : r.inv[a];
@@ -380,8 +382,13 @@ class SvoTraversal {
           return leaf(j, cell, child);
         });
       };
-      if (width == 16) svo_avx512::packet_walk<kStats>(v, p, mirror, lanes, stats, leaf, scalar);
-      else svo_avx2::packet_walk<kStats>(v, p, mirror, lanes, stats, leaf, scalar);
+      if (fixed) {
+        if (width == 16) svo_avx512::packet_walk<kStats, true>(v, p, mirror, lanes, stats, leaf, scalar);
+        else svo_avx2::packet_walk<kStats, true>(v, p, mirror, lanes, stats, leaf, scalar);
+      } else {
+        if (width == 16) svo_avx512::packet_walk<kStats, false>(v, p, mirror, lanes, stats, leaf, scalar);
+        else svo_avx2::packet_walk<kStats, false>(v, p, mirror, lanes, stats, leaf, scalar);
+      }
     }
   }
 
