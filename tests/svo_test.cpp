@@ -17,8 +17,11 @@
 #include <vector>
 
 #include "specula/error.h"
+#include "specula/load.h"
+#include "specula/render.h"
 #include "specula/svo.h"
 #include "specula/voxel_grid.h"
+#include "specula/voxel_scene.h"
 #include "specula/voxel_tracer.h"
 #include "voxel/voxel_brute.h"
 #include "ray_test_util.h"
@@ -815,6 +818,36 @@ TEST(Svo, DepthZeroEmptyAndFactory) {
 
 namespace specula {
 namespace {
+
+// Seed 000's setup (RenderOptions::shadows = false): no shadow ray is traced, every light
+// sample is added unoccluded, so no pixel gets darker and shadowed ones get brighter; the
+// primary and secondary rays are the same.
+TEST(SvoRender, WithoutShadowRaysLightsAreUnoccluded) {
+  LoadOptions lo;
+  lo.warn = [](const std::string&) {};
+  const Scene scene = make_builtin_scene("cornell", lo);
+  SceneVoxelOptions vo;
+  vo.depth = 6;
+  const auto svo = voxelize_scene(scene, vo);
+  RenderOptions ro;
+  ro.width = 48;
+  ro.height = 36;
+  ro.threads = 2;
+  RenderStats with, without;
+  const Film a = render_whitted(scene, *svo, ro, &with);
+  ro.shadows = false;
+  const Film b = render_whitted(scene, *svo, ro, &without);
+  EXPECT_GT(with.shadow_rays, 0u);
+  EXPECT_EQ(without.shadow_rays, 0u);
+  EXPECT_EQ(without.primary_rays, with.primary_rays);
+  EXPECT_EQ(without.secondary_rays, with.secondary_rays);
+  size_t brighter = 0;
+  for (size_t i = 0; i < a.color.size(); ++i) {
+    for (int c = 0; c < 3; ++c) EXPECT_GE(b.color[i][c], a.color[i][c] - 1e-6f * (1.0f + a.color[i][c])) << i;
+    brighter += b.color[i].x > a.color[i].x + 1e-3f ? 1 : 0;
+  }
+  EXPECT_GT(brighter, a.color.size() / 50);  // some pixels were in shadow
+}
 
 // Seed 001's medium rule: a ray skipping material m passes every voxel of material m and stops
 // at the first voxel of another material; the same answer as tracing the set without the

@@ -247,14 +247,14 @@ int bench_svo(const BenchSvoOptions& options) {
       std::printf("\n");
     }
   };
-  print_table("fps, seed 000's setup (no shadow rays), voxel cubes: ours / seed 000's GPU (AMD Radeon HD 6900); "
+  print_table("fps, voxel cubes, seed 000's setup (no shadow rays): ours / seed 000's GPU (AMD Radeon HD 6900); "
               "columns: octree depth",
               [](const Cell& c) { return c.fps[kSeed][0]; }, "%.2f", true);
-  print_table("fps, seed 000's setup (no shadow rays), contours: ours / seed 000's GPU",
+  print_table("fps, contours, seed 000's setup (no shadow rays): ours / seed 000's GPU",
               [](const Cell& c) { return c.fps[kSeed][1]; }, "%.2f", true);
-  print_table("fps, full Whitted (with shadow rays; the seed traced none), voxel cubes",
+  print_table("fps, voxel cubes, full Whitted (with shadow rays; the seed traced none)",
               [](const Cell& c) { return c.fps[kFull][0]; }, "%.2f", false);
-  print_table("fps, full Whitted (with shadow rays; the seed traced none), contours",
+  print_table("fps, contours, full Whitted (with shadow rays; the seed traced none)",
               [](const Cell& c) { return c.fps[kFull][1]; }, "%.2f", false);
   print_table("CPU ms per frame (all threads), seed 000's setup, voxel cubes: the work behind the fps above, which "
               "on a shared machine also depends on the other load",
