@@ -1,17 +1,23 @@
 // Google Benchmark: sparse voxel octree vs dense voxel grid traversal, one thread, on a
-// synthetic sphere shell (owner: voxel tracers).
+// synthetic sphere shell and on seed 000's pool scene (owner: voxel tracers).
 //   build/release/specula_bench --benchmark_filter='Svo|VoxelGrid'
 // Rays: 640 x 480 primary rays of a pinhole camera looking at the shell (coherent, in 8 x 8
-// tiles as the integrator traces them), and random rays through the grid (incoherent).
+// tiles), and random rays through the grid (incoherent). Pool: the built-in scene voxelized at
+// depth 8 as `specula bench svo` does, 640 x 480 primary rays of the water / bunny / parallel
+// cameras in the integrator's 16 x 16 tiles, and shadow rays towards the sun from their hits.
 #include <benchmark/benchmark.h>
 
 #include <cmath>
 #include <map>
 #include <memory>
 #include <random>
+#include <string>
 #include <vector>
 
+#include "specula/load.h"
+#include "specula/render.h"
 #include "specula/svo.h"
+#include "specula/voxel_scene.h"
 #include "specula/voxel_grid.h"
 #include "specula/voxel_tracer.h"
 
@@ -119,6 +125,84 @@ void BM_SvoBuild(benchmark::State& state) {
   state.counters["node B/voxel"] = info.node_bytes_per_voxel;
   state.counters["B/voxel"] = info.bytes_per_voxel;
 }
+
+/// The pool voxelized at depth 8 and, per camera, its primary rays and sun shadow rays.
+struct PoolRays {
+  std::unique_ptr<VoxelTracer> svo;
+  std::vector<Ray> primary[3], shadow[3];
+  bool stand_in = false;
+};
+
+const PoolRays& pool() {
+  static const PoolRays p = [] {
+    PoolRays r;
+    LoadOptions lo;
+    lo.warn = [&r](const std::string&) { r.stand_in = true; };
+    const Scene scene = load_scene("pool", lo);
+    SceneVoxelOptions vo;
+    vo.depth = 8;
+    vo.threads = 1;
+    r.svo = voxelize_scene(scene, vo);
+    const char* cams[3] = {"water", "bunny", "parallel"};
+    Vec3 sun = Vec3(0.0f, 1.0f, 0.0f);
+    for (const Light& l : scene.lights)
+      if (l.type == LightType::Directional) sun = normalize(-l.direction);
+    for (int c = 0; c < 3; ++c) {
+      const PinholeCamera cam(scene.cameras[*scene.find_camera(cams[c])], 640, 480);
+      for (int ty = 0; ty < 480; ty += 16)
+        for (int tx = 0; tx < 640; tx += 16)
+          for (int y = ty; y < ty + 16; ++y)
+            for (int x = tx; x < tx + 16; ++x)
+              r.primary[c].push_back(cam.generate(static_cast<float>(x) + 0.5f, static_cast<float>(y) + 0.5f));
+      std::vector<Hit> hits(r.primary[c].size());
+      r.svo->intersect(r.primary[c], hits);
+      for (size_t i = 0; i < hits.size(); ++i) {
+        if (!hits[i].hit()) continue;
+        Ray s;
+        s.org = offset_ray_origin(r.primary[c][i].org + r.primary[c][i].dir * hits[i].t, hits[i].ng);
+        s.dir = sun;
+        r.shadow[c].push_back(s);
+      }
+    }
+    return r;
+  }();
+  return p;
+}
+
+void pool_counters(benchmark::State& state, const VoxelTracer& t, size_t n, const TraceStats& stats) {
+  state.counters["Mrays/s"] = benchmark::Counter(static_cast<double>(n) / 1e6, benchmark::Counter::kIsIterationInvariantRate);
+  state.counters["nodes/ray"] = static_cast<double>(stats.nodes_visited) / static_cast<double>(n);
+  state.counters["voxels"] = static_cast<double>(t.voxel_count());
+  if (pool().stand_in) state.SetLabel("bunny stand-in (stanford-bunny.obj not found)");
+}
+
+// Arg: camera (0 = water, 1 = bunny, 2 = parallel).
+void BM_SvoPoolPrimary(benchmark::State& state) {
+  const PoolRays& p = pool();
+  const std::vector<Ray>& rays = p.primary[state.range(0)];
+  std::vector<Hit> hits(rays.size());
+  for (auto _ : state) {
+    p.svo->intersect(rays, hits);
+    benchmark::DoNotOptimize(hits.data());
+  }
+  TraceStats stats;
+  p.svo->intersect(rays, hits, &stats);
+  pool_counters(state, *p.svo, rays.size(), stats);
+}
+void BM_SvoPoolShadow(benchmark::State& state) {
+  const PoolRays& p = pool();
+  const std::vector<Ray>& rays = p.shadow[state.range(0)];
+  std::vector<Vec3> out(rays.size());
+  for (auto _ : state) {
+    p.svo->transmittance(rays, out);
+    benchmark::DoNotOptimize(out.data());
+  }
+  TraceStats stats;
+  p.svo->transmittance(rays, out, &stats);
+  pool_counters(state, *p.svo, rays.size(), stats);
+}
+BENCHMARK(BM_SvoPoolPrimary)->Arg(0)->Arg(1)->Arg(2)->ArgName("camera")->Unit(benchmark::kMillisecond);
+BENCHMARK(BM_SvoPoolShadow)->Arg(0)->Arg(1)->Arg(2)->ArgName("camera")->Unit(benchmark::kMillisecond);
 
 // Args: depth, contours (0 = cubes).
 BENCHMARK(BM_SvoPrimary)->Args({8, 0})->Args({8, 1})->Args({10, 0})->Args({10, 1})->ArgNames({"depth", "contours"})->Unit(benchmark::kMillisecond);

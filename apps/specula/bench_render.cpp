@@ -5,6 +5,7 @@
 #include <cmath>
 #include <limits>
 #include <cstdio>
+#include <ctime>
 #include <optional>
 #include <sstream>
 #include <string>
@@ -81,15 +82,26 @@ std::string seed_cells(const SeedRow& r) {
   return s;
 }
 
-/// Renders \p frames times; returns the median ms and the last film and stats.
+/// Process CPU time (all threads) in ms.
+double process_cpu_ms() {
+  timespec ts{};
+  clock_gettime(CLOCK_PROCESS_CPUTIME_ID, &ts);
+  return static_cast<double>(ts.tv_sec) * 1e3 + static_cast<double>(ts.tv_nsec) * 1e-6;
+}
+
+/// Renders \p frames times; returns the median ms and the last film and stats, and the median
+/// CPU time of a frame over all threads in \p cpu_ms when given.
 double timed_render(const Scene& scene, const Tracer& tracer, const specula::RenderOptions& ro, int frames, Film& film,
-                    RenderStats& stats) {
-  std::vector<double> ms;
+                    RenderStats& stats, double* cpu_ms = nullptr) {
+  std::vector<double> ms, cpu;
   for (int f = 0; f < frames; ++f) {
     stats = {};
+    const double c0 = process_cpu_ms();
     film = render_whitted(scene, tracer, ro, &stats);
+    cpu.push_back(process_cpu_ms() - c0);
     ms.push_back(stats.render_ms);
   }
+  if (cpu_ms) *cpu_ms = median(cpu);
   return median(ms);
 }
 
@@ -134,31 +146,49 @@ int bench_svo(const BenchSvoOptions& options) {
   if (cameras.empty())
     for (const Camera& c : scene.cameras) cameras.push_back(c.name);
 
-  // The reference: the triangles through the BVH, once per view.
+  // Two setups: seed 000's (Whitted without shadow rays, its section 1.7.2), the one compared
+  // with its table, and our full Whitted (a shadow ray to every light sample at every hit).
+  enum Setup { kSeed = 0, kFull = 1 };
+  const auto setup_options = [&](Setup setup) {
+    specula::RenderOptions o = ro;
+    o.shadows = setup == kFull;
+    return o;
+  };
+
+  // The reference: the triangles through the BVH, once per view and setup.
   struct View {
     std::string camera;
     Size size;
-    Film bvh;
+    Film bvh[2];
   };
   std::vector<View> views;
   for (const std::string& camera : cameras)
     for (const Size& size : sizes) {
-      ro.camera = camera;
-      ro.width = size.width;
-      ro.height = size.height;
       View v{camera, size, {}};
-      RenderStats st;
-      (void)timed_render(scene, *prepared.tracer, ro, 1, v.bvh, st);
+      for (const Setup setup : {kSeed, kFull}) {
+        specula::RenderOptions o = setup_options(setup);
+        o.camera = camera;
+        o.width = size.width;
+        o.height = size.height;
+        RenderStats st;
+        (void)timed_render(scene, *prepared.tracer, o, 1, v.bvh[setup], st);
+      }
       views.push_back(std::move(v));
     }
 
   struct Cell {
-    double cube_fps = 0, contour_fps = 0, cube_psnr = 0, contour_psnr = 0;
+    double fps[2][2] = {};   ///< [setup][0 = cubes, 1 = contours]
+    double psnr[2][2] = {};
+    double rays_per_pixel[2][2] = {};
+    double cpu_ms[2][2] = {};  ///< CPU time of a frame, all threads
   };
   std::vector<std::vector<Cell>> cells(views.size(), std::vector<Cell>(depths.size()));
   std::printf("\nbench svo: %s, %d thread%s, max reflect %d / refract %d, median of %d frame%s per cell\n",
               options.scene.c_str(), threads, threads == 1 ? "" : "s", ro.max_reflect, ro.max_refract, options.frames,
               options.frames == 1 ? "" : "s");
+  std::printf("  seed 000's setup: Whitted without shadow rays (every light shades every hit unoccluded;\n"
+              "    reflections and refractions traced), as the seed's section 1.7.2 describes its renderer\n"
+              "  full Whitted: the same plus a shadow ray to every light (sample) at every hit\n");
   for (size_t di = 0; di < depths.size(); ++di) {
     SceneVoxelOptions vo;
     vo.kind = "svo";
@@ -172,17 +202,23 @@ int bench_svo(const BenchSvoOptions& options) {
                 info.voxels ? static_cast<double>(info.bytes) / static_cast<double>(info.voxels) : 0.0);
     std::fflush(stdout);
     for (size_t vi = 0; vi < views.size(); ++vi) {
-      ro.camera = views[vi].camera;
-      ro.width = views[vi].size.width;
-      ro.height = views[vi].size.height;
-      Film film;
-      RenderStats st;
-      svo->set_hit_mode(VoxelHitMode::Cubes);
-      cells[vi][di].cube_fps = 1000.0 / std::max(timed_render(scene, *svo, ro, options.frames, film, st), 1e-9);
-      cells[vi][di].cube_psnr = psnr(film, views[vi].bvh);
-      svo->set_hit_mode(VoxelHitMode::Contours);
-      cells[vi][di].contour_fps = 1000.0 / std::max(timed_render(scene, *svo, ro, options.frames, film, st), 1e-9);
-      cells[vi][di].contour_psnr = psnr(film, views[vi].bvh);
+      for (const Setup setup : {kSeed, kFull}) {
+        specula::RenderOptions o = setup_options(setup);
+        o.camera = views[vi].camera;
+        o.width = views[vi].size.width;
+        o.height = views[vi].size.height;
+        const double pixels = static_cast<double>(o.width) * static_cast<double>(o.height);
+        for (const int m : {0, 1}) {
+          Film film;
+          RenderStats st;
+          svo->set_hit_mode(m == 0 ? VoxelHitMode::Cubes : VoxelHitMode::Contours);
+          Cell& c = cells[vi][di];
+          c.fps[setup][m] =
+              1000.0 / std::max(timed_render(scene, *svo, o, options.frames, film, st, &c.cpu_ms[setup][m]), 1e-9);
+          c.psnr[setup][m] = psnr(film, views[vi].bvh[setup]);
+          c.rays_per_pixel[setup][m] = static_cast<double>(st.total_rays()) / pixels;
+        }
+      }
     }
   }
 
@@ -211,15 +247,32 @@ int bench_svo(const BenchSvoOptions& options) {
       std::printf("\n");
     }
   };
-  print_table("fps, voxel cubes (ours / seed 000's GPU, AMD Radeon HD 6900; columns: octree depth)",
-              [](const Cell& c) { return c.cube_fps; }, "%.2f", true);
-  print_table("fps, contours (ours / seed 000's GPU)", [](const Cell& c) { return c.contour_fps; }, "%.2f", true);
-  print_table("contour cost: cube fps / contour fps", [](const Cell& c) { return c.cube_fps / c.contour_fps; }, "%.2fx",
-              false);
-  print_table("PSNR (dB) of the cube render against the triangle (BVH) render",
-              [](const Cell& c) { return c.cube_psnr; }, "%.1f", false);
-  print_table("PSNR (dB) of the contour render against the triangle (BVH) render",
-              [](const Cell& c) { return c.contour_psnr; }, "%.1f", false);
+  print_table("fps, voxel cubes, seed 000's setup (no shadow rays): ours / seed 000's GPU (AMD Radeon HD 6900); "
+              "columns: octree depth",
+              [](const Cell& c) { return c.fps[kSeed][0]; }, "%.2f", true);
+  print_table("fps, contours, seed 000's setup (no shadow rays): ours / seed 000's GPU",
+              [](const Cell& c) { return c.fps[kSeed][1]; }, "%.2f", true);
+  print_table("fps, voxel cubes, full Whitted (with shadow rays; the seed traced none)",
+              [](const Cell& c) { return c.fps[kFull][0]; }, "%.2f", false);
+  print_table("fps, contours, full Whitted (with shadow rays; the seed traced none)",
+              [](const Cell& c) { return c.fps[kFull][1]; }, "%.2f", false);
+  print_table("CPU ms per frame (all threads), seed 000's setup, voxel cubes: the work behind the fps above, which "
+              "on a shared machine also depends on the other load",
+              [](const Cell& c) { return c.cpu_ms[kSeed][0]; }, "%.1f", false);
+  print_table("rays per pixel, seed 000's setup, cubes (primary + reflection + refraction)",
+              [](const Cell& c) { return c.rays_per_pixel[kSeed][0]; }, "%.2f", false);
+  print_table("rays per pixel, full Whitted, cubes (primary + reflection + refraction + shadow)",
+              [](const Cell& c) { return c.rays_per_pixel[kFull][0]; }, "%.2f", false);
+  print_table("contour cost, seed 000's setup: cube fps / contour fps",
+              [](const Cell& c) { return c.fps[kSeed][0] / c.fps[kSeed][1]; }, "%.2fx", false);
+  print_table("PSNR (dB) of the cube render against the triangle (BVH) render, seed 000's setup",
+              [](const Cell& c) { return c.psnr[kSeed][0]; }, "%.1f", false);
+  print_table("PSNR (dB) of the contour render against the triangle (BVH) render, seed 000's setup",
+              [](const Cell& c) { return c.psnr[kSeed][1]; }, "%.1f", false);
+  print_table("PSNR (dB) of the cube render against the triangle (BVH) render, full Whitted",
+              [](const Cell& c) { return c.psnr[kFull][0]; }, "%.1f", false);
+  print_table("PSNR (dB) of the contour render against the triangle (BVH) render, full Whitted",
+              [](const Cell& c) { return c.psnr[kFull][1]; }, "%.1f", false);
   return 0;
 }
 

@@ -199,10 +199,10 @@ int render(const RenderOptions& options) {
   progress.finish();
   const double ms = median(times);
   const uint64_t rays = stats.total_rays();
-  std::printf("render   %9.2f ms  (%dx%d, %s%s, %.2f fps)\n", ms, ro.width, ro.height,
+  std::printf("render   %9.2f ms  (%dx%d, %s%s, %.2f fps%s)\n", ms, ro.width, ro.height,
               options.frames > 1 ? "median of " : "",
               options.frames > 1 ? (std::to_string(options.frames) + " frames").c_str() : "1 frame",
-              1000.0 / std::max(ms, 1e-9));
+              1000.0 / std::max(ms, 1e-9), ro.shadows ? "" : ", no shadow rays");
   std::printf("rays     %s  (%s primary, %s secondary, %s shadow)\n", with_thousands(rays).c_str(),
               with_thousands(stats.primary_rays).c_str(), with_thousands(stats.secondary_rays).c_str(),
               with_thousands(stats.shadow_rays).c_str());

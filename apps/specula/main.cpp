@@ -153,6 +153,8 @@ void add_integrator_options(CLI::App* app, std::string& accel, specula::RenderOp
   app->add_option("--threads", ro.threads, "worker threads (0 = all cores)")
       ->check(CLI::Range(0, 1024))
       ->capture_default_str();
+  app->add_flag("!--no-shadows", ro.shadows,
+                "trace no shadow rays: lights shade every hit as if unoccluded (seed 000's Whitted setup)");
 }
 
 }  // namespace

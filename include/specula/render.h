@@ -37,6 +37,9 @@ struct RenderOptions {
   int max_reflect = 4;       ///< max mirror bounces on a path (seed 001's d_min/d_max)
   int max_refract = 6;       ///< max refraction events on a path
   int threads = 0;           ///< 0 = all hardware threads
+  /// false: lights shade every hit as if unoccluded, no shadow rays are traced (seed 000's
+  /// "Whitted ray tracer without shadow rays"); reflections and refractions are unchanged.
+  bool shadows = true;
   int tile_size = 16;
   std::vector<Aov> aovs;
   /// Called now and then from the rendering threads' coordinator with the fraction done.

@@ -129,6 +129,7 @@ struct Context {
   /// Set when the tracer traces voxels: hits are then voxels (Hit::prim indexes the voxel
   /// attributes), shaded with their averaged numbers over their largest triangle's material.
   const VoxelTracer* voxels = nullptr;
+  bool shadows = true;  ///< false: light contributions are added without a shadow ray
 
   /// Whether a hit record refers to something this context can shade.
   bool valid(const Hit& hit) const {
@@ -187,6 +188,10 @@ void shade_lights(const Context& ctx, Scratch& s, const Segment& seg, const Mate
     }
     const Vec3 c = seg.weight * f * irradiance;
     if (max_component(c) <= 0.0f) return;
+    if (!ctx.shadows) {  // unoccluded: no shadow ray
+      s.accum[seg.pixel] += c;
+      return;
+    }
     s.shadow_rays.push_back(shadow);
     s.shadow_contrib.push_back(c);
     s.shadow_pixel.push_back(seg.pixel);
@@ -590,6 +595,7 @@ Film render_whitted(const Scene& scene, const Tracer& tracer, const RenderOption
   const int tiles_y = (h + ctx.tile - 1) / ctx.tile;
   ctx.max_reflect = std::clamp(options.max_reflect, 0, kMaxDepthCap);
   ctx.max_refract = std::clamp(options.max_refract, 0, kMaxDepthCap);
+  ctx.shadows = options.shadows;
 
   const SkyEval sky(scene.sky);
   const PinholeCamera camera(cam, w, h);

@@ -1,27 +1,34 @@
 // Sparse voxel octree traversal: closest hit and transmittance (owner: voxel tracers).
 //
-// Revelles et al.'s parametric traversal as seed 000 extends it. Per node (one stack frame
-// per level): the distances t0 / t1 at which the ray crosses the node's near / far plane of
-// each axis, and tm at which it crosses the mid plane, all computed as (integer plane - o) *
+// Revelles et al.'s parametric traversal as seed 000 extends it, driven by one running
+// parameter t instead of per-node child lists. Every node keeps the distances of its three
+// mid planes (tm) and of its three far planes (nf), all computed as (integer plane - o) *
 // (1 / d) in the grid's local frame, exactly as the shared kernel (voxel_brute.h) computes
 // voxel boundaries, so the nodes visited and the hits found are bit-identical to the grid's
-// and the brute force's. Directions are mirrored to positive: child slots are numbered along
-// the ray (bit i set = the far half of axis i) and `slot ^ mirror` is the real child index.
-// The first child has bit i set when the mid plane i is crossed at or before the node's entry
-// distance; the following ones cross the remaining mid planes inside the node in increasing tm
-// order. That list (at most 4 slots) is built once per node from the three sorted tm values,
-// filtered by the child mask and kept in the node's frame (4 bits per slot), so popping a
-// child resumes with the next occupied slot without recomputing anything. Children whose
-// interval is empty (the ray only touches them) are skipped, which is exactly the kernel's
-// "positive length" rule. Fixed axes (direction +-0) have t0 = -inf, t1 = +inf and tm = -inf
-// or +inf depending on which side of the mid plane the origin lies (half-open), so they
-// select one half and never generate a crossing.
+// and the brute force's. At time t the ray is in the child whose slot (in ray order, bit i
+// set = the far half of axis i along the ray) has bit i set exactly when tm[i] <= t; `slot ^
+// mirror` is the real child index (seed 000's mirroring). That child's far planes are nf[i]
+// on its far axes and tm[i] on the others, so its exit time tx is one select and one
+// horizontal minimum. An occupied child is entered (or, at the leaf level, tested with the
+// kernel); an empty one, or a leaf that was not hit, is stepped over by setting t = tx, and
+// nodes whose exit time is reached are popped. The child selected at t always has t < tx,
+// and t is exactly its entry distance, so every voxel the kernel says is crossed (positive
+// length) is visited, in ray order, and no other. Fixed axes (direction +-0) use 1/d = +inf
+// here: a plane at or behind the origin gives -inf (0 * inf = NaN is mapped to -inf), one
+// ahead of it +inf, which is the kernel's half-open rule. The fourth lane carries tmax (the
+// plane vector's lane 3 is 0 and o's is -tmax), so the exit minimum includes it for free.
+// One stack frame per level (depth <= 21); SSE2 only (the x86-64 baseline).
+#include <immintrin.h>
+
+#include <algorithm>
 #include <array>
+#include <atomic>
 #include <bit>
 #include <cmath>
 #include <cstdint>
 #include <span>
 #include <utility>
+#include <vector>
 
 #include "specula/error.h"
 #include "specula/svo.h"
@@ -35,176 +42,390 @@ constexpr auto kPopcount8 = [] {
   for (unsigned i = 0; i < 256; ++i) t[i] = static_cast<uint8_t>(std::popcount(i));
   return t;
 }();
+
+/// kSlotMask[mirror][mask]: bit s set when child s ^ mirror exists (the occupied children as
+/// slots, i.e. in ray order for rays of that direction octant).
+constexpr auto kSlotMask = [] {
+  std::array<std::array<uint8_t, 256>, 8> t{};
+  for (unsigned m = 0; m < 8; ++m)
+    for (unsigned mask = 0; mask < 256; ++mask)
+      for (unsigned s = 0; s < 8; ++s)
+        if ((mask >> (s ^ m)) & 1u) t[m][mask] = static_cast<uint8_t>(t[m][mask] | (1u << s));
+  return t;
+}();
+
+/// Lane i all ones when bit i of the index is set (lane 3 always zero).
+alignas(16) constexpr uint32_t kSlotLanes[8][4] = {
+    {0, 0, 0, 0}, {~0u, 0, 0, 0}, {0, ~0u, 0, 0}, {~0u, ~0u, 0, 0},
+    {0, 0, ~0u, 0}, {~0u, 0, ~0u, 0}, {0, ~0u, ~0u, 0}, {~0u, ~0u, ~0u, 0},
+};
+
+inline __m128i slot_lanes(uint32_t slot) {
+  return _mm_load_si128(reinterpret_cast<const __m128i*>(kSlotLanes[slot]));
+}
+
+inline float hmin(__m128 v) {
+  const __m128 m = _mm_min_ps(v, _mm_shuffle_ps(v, v, _MM_SHUFFLE(2, 3, 0, 1)));
+  return _mm_cvtss_f32(_mm_min_ps(m, _mm_movehl_ps(m, m)));
+}
 }  // namespace
 
 using voxel::CellHit;
 using voxel::LocalRay;
 
+/// What the traversals read of an octree.
+struct SvoView {
+  const SvoNode* nodes;
+  const VoxelAttributes* leaf_attrs;
+  const VoxelAttributes* inner_attrs;
+  uint32_t n_leaves;
+  int depth;       ///< grid depth (planes are in voxels of this level)
+  int leaf_level;  ///< level whose nodes are the leaves (depth, or the lod level)
+  int shift;       ///< depth - leaf_level
+  VoxelHitMode mode;
+
+  const VoxelAttributes& attrs(uint32_t child) const { return shift == 0 ? leaf_attrs[child] : inner_attrs[child]; }
+  uint32_t prim(uint32_t child) const { return shift == 0 ? child : n_leaves + child; }
+};
+
+/// The single-ray traversal of the subtree of node \p node (level \p level, minimum corner
+/// \p c in voxels): calls leaf(cell, child) for the leaves the ray crosses in ray order
+/// (cell in the leaf level's integer coordinates, child = index of the leaf in its level);
+/// returns true as soon as leaf() does.
+template <bool kStats, class Leaf>
+bool walk_node(const SvoView& v, const LocalRay& r, int level, const int32_t c[3], uint32_t node, TraceStats& stats,
+               Leaf&& leaf) {
+  const int start_level = level;
+  const int32_t res = int32_t{1} << v.depth;
+  const uint32_t mirror = r.mirror;
+  const SvoNode* nodes = v.nodes;
+
+  const auto inv_of = [&r](int i) { return ((r.fixed >> i) & 1u) ? kInf : r.inv[i]; };
+  const __m128 o = _mm_setr_ps(r.o[0], r.o[1], r.o[2], -r.tmax);
+  const __m128 inv = _mm_setr_ps(inv_of(0), inv_of(1), inv_of(2), 1.0f);
+  const __m128 neg_inf = _mm_set1_ps(-kInf);
+  // Distances of the integer planes p (lanes 0-2; lane 3 must be 0 and gives tmax).
+  const auto plane_t = [&](__m128i p) {
+    return _mm_max_ps(_mm_mul_ps(_mm_sub_ps(_mm_cvtepi32_ps(p), o), inv), neg_inf);
+  };
+  const __m128i mirror_lanes = slot_lanes(mirror);
+  const __m128i xyz = slot_lanes(7u);
+
+  struct alignas(16) Frame {
+    __m128 tm;          ///< mid planes (lane 3: tmax)
+    __m128 nf;          ///< far planes along the ray (lane 3: tmax)
+    __m128i corner;     ///< minimum corner in voxels (lane 3: 0)
+    float nx;           ///< exit distance: min(nf)
+    uint32_t first_child, mask;
+  };
+  Frame stack[kMaxVoxelDepth + 1];
+  Frame* f = stack;
+
+  // The start node: near planes at its minimum corner (maximum on mirrored axes), far planes
+  // opposite.
+  const __m128i corner = _mm_setr_epi32(c[0], c[1], c[2], 0);
+  const __m128i side = _mm_and_si128(_mm_set1_epi32(res >> level), xyz);
+  alignas(16) float near[4];
+  _mm_store_ps(near, plane_t(_mm_add_epi32(corner, _mm_and_si128(mirror_lanes, side))));
+  float t = std::max(std::max(near[0], near[1]), std::max(near[2], r.tmin));
+  f->nf = plane_t(_mm_add_epi32(corner, _mm_andnot_si128(mirror_lanes, side)));
+  f->nx = hmin(f->nf);
+  if (!(t < f->nx)) return false;
+  f->corner = corner;
+  int32_t half = (res >> level) >> 1;  // side of the current node's children, in voxels
+  f->tm = plane_t(_mm_add_epi32(corner, _mm_and_si128(_mm_set1_epi32(half), xyz)));
+  f->first_child = nodes[node].first_child;
+  f->mask = nodes[node].mask;
+  if constexpr (kStats) ++stats.nodes_visited;
+
+  for (;;) {
+    // The child the ray is in at t, and when it leaves it.
+    const __m128 le = _mm_cmple_ps(f->tm, _mm_set1_ps(t));
+    const uint32_t slot = static_cast<uint32_t>(_mm_movemask_ps(le)) & 7u;
+    const __m128 cf = _mm_or_ps(_mm_and_ps(le, f->nf), _mm_andnot_ps(le, f->tm));
+    const float tx = hmin(cf);
+    const uint32_t real = slot ^ mirror;
+    if ((f->mask >> real) & 1u) {
+      const uint32_t child = f->first_child + kPopcount8[f->mask & ((1u << real) - 1u)];
+      const __m128i cc = _mm_add_epi32(f->corner, _mm_and_si128(slot_lanes(real), _mm_set1_epi32(half)));
+      if (level + 1 == v.leaf_level) {
+        if constexpr (kStats) ++stats.triangles_tested;
+        alignas(16) uint32_t cell[4];
+        _mm_store_si128(reinterpret_cast<__m128i*>(cell), _mm_srli_epi32(cc, v.shift));
+        if (leaf(static_cast<const uint32_t*>(cell), child)) return true;
+      } else {
+        // Enter the child at the same t.
+        Frame* ch = f + 1;
+        ch->corner = cc;
+        ch->nf = cf;
+        ch->nx = tx;
+        half >>= 1;
+        ch->tm = plane_t(_mm_add_epi32(cc, _mm_and_si128(_mm_set1_epi32(half), xyz)));
+        const SvoNode n = nodes[child];
+        ch->first_child = n.first_child;
+        ch->mask = n.mask;
+        f = ch;
+        ++level;
+        if constexpr (kStats) ++stats.nodes_visited;
+        continue;
+      }
+    }
+    // Step over the child; leave the nodes whose exit is reached.
+    t = tx;
+    while (!(t < f->nx)) {
+      if (level == start_level) return false;
+      --f;
+      --level;
+      half <<= 1;
+    }
+  }
+}
+
+/// Up to 16 rays of one direction octant (same mirror) in structure-of-arrays form, in the
+/// grid's local frame; fixed axes have inv = +inf (see the file comment).
+struct alignas(64) PacketRays {
+  float o[3][16];
+  float inv[3][16];
+  float tmin[16];
+  float tmax[16];
+};
+
+}  // namespace specula
+
+// The packet kernels: one source, compiled per vector width and instruction set.
+#define SVO_NS svo_avx2
+#define SVO_TARGET __attribute__((target("avx2,popcnt,bmi")))
+#define SVO_WIDTH 8
+#define SVO_VF __m256
+#define SVO_LOAD _mm256_load_ps
+#define SVO_SET1 _mm256_set1_ps
+#define SVO_SUB _mm256_sub_ps
+#define SVO_MUL _mm256_mul_ps
+#define SVO_MIN _mm256_min_ps
+#define SVO_MAX _mm256_max_ps
+#define SVO_LT(a, b) static_cast<uint32_t>(_mm256_movemask_ps(_mm256_cmp_ps((a), (b), _CMP_LT_OQ)))
+#include "voxel/svo_packet.inc"
+#undef SVO_NS
+#undef SVO_TARGET
+#undef SVO_WIDTH
+#undef SVO_VF
+#undef SVO_LOAD
+#undef SVO_SET1
+#undef SVO_SUB
+#undef SVO_MUL
+#undef SVO_MIN
+#undef SVO_MAX
+#undef SVO_LT
+
+#define SVO_NS svo_avx512
+#define SVO_TARGET __attribute__((target("avx2,avx512f,popcnt,bmi")))
+#define SVO_WIDTH 16
+#define SVO_VF __m512
+#define SVO_LOAD _mm512_load_ps
+#define SVO_SET1 _mm512_set1_ps
+#define SVO_SUB _mm512_sub_ps
+#define SVO_MUL _mm512_mul_ps
+// Full-mask zero-masking max / min: GCC 12's plain _mm512_max_ps merges into an undefined
+// register and trips -Wmaybe-uninitialized; with every lane set the result is the same.
+#define SVO_MIN(a, b) _mm512_maskz_min_ps(0xFFFF, (a), (b))
+#define SVO_MAX(a, b) _mm512_maskz_max_ps(0xFFFF, (a), (b))
+#define SVO_LT(a, b) static_cast<uint32_t>(_mm512_cmp_ps_mask((a), (b), _CMP_LT_OQ))
+#include "voxel/svo_packet.inc"
+#undef SVO_NS
+#undef SVO_TARGET
+#undef SVO_WIDTH
+#undef SVO_VF
+#undef SVO_LOAD
+#undef SVO_SET1
+#undef SVO_SUB
+#undef SVO_MUL
+#undef SVO_MIN
+#undef SVO_MAX
+#undef SVO_LT
+
+namespace specula {
+
+namespace voxel {
+namespace {
+std::atomic<int> g_packet_width_limit{16};
+
+int cpu_packet_width() {
+  static const int width = [] {
+    if (!__builtin_cpu_supports("avx2") || !__builtin_cpu_supports("popcnt") || !__builtin_cpu_supports("bmi")) return 1;
+    return __builtin_cpu_supports("avx512f") ? 16 : 8;
+    return 1;
+  }();
+  return width;
+}
+}  // namespace
+
+int svo_packet_width() { return std::min(cpu_packet_width(), g_packet_width_limit.load(std::memory_order_relaxed)); }
+void set_svo_packet_width_limit(int width) { g_packet_width_limit.store(std::max(width, 1), std::memory_order_relaxed); }
+}  // namespace voxel
+
 class SvoTraversal {
  public:
-  /// Visits the leaves (voxels, or nodes at the lod level) the ray crosses, in ray order,
-  /// calling leaf(lr, cell, attrs, prim) with the ray in the leaf level's frame and the leaf's
-  /// integer cell; stops when it returns true.
+  static SvoView view(const SparseVoxelOctree& s) {
+    const int depth = s.grid_.depth;
+    const int leaf_level = (s.lod_ > 0 && s.lod_ < depth) ? s.lod_ : depth;
+    return SvoView{s.nodes_.data(), s.leaf_attrs_.data(), s.inner_attrs_.data(),
+                   static_cast<uint32_t>(s.leaf_attrs_.size()), depth, leaf_level, depth - leaf_level, s.mode_};
+  }
+
+  /// One ray: calls leaf(lr, cell, attrs, prim) for the leaves (voxels, or nodes at the lod
+  /// level) it crosses, in ray order, with the ray in the leaf level's frame; stops when leaf
+  /// returns true.
   template <bool kStats, class Leaf>
   static void walk(const SparseVoxelOctree& s, const Ray& ray, TraceStats& stats, Leaf&& leaf) {
     if constexpr (kStats) ++stats.rays;
     LocalRay r;
     if (s.leaf_attrs_.empty() || !voxel::make_local_ray(ray, s.grid_, r)) return;
-    const int depth = s.grid_.depth;
-    if (depth == 0) {
+    if (s.grid_.depth == 0) {
       const uint32_t cell[3] = {0, 0, 0};
       if constexpr (kStats) ++stats.triangles_tested;
       leaf(r, cell, s.leaf_attrs_[0], 0u);
       return;
     }
-    const int leaf_level = (s.lod_ > 0 && s.lod_ < depth) ? s.lod_ : depth;
-    const int shift = depth - leaf_level;
-    const LocalRay rl = shift > 0 ? voxel::coarsen(r, shift) : r;
-    const uint32_t res = 1u << depth;
-    const uint32_t mirror = r.mirror;
-    const uint32_t n_leaves = static_cast<uint32_t>(s.leaf_attrs_.size());
-    const SvoNode* nodes = s.nodes_.data();
+    const SvoView v = view(s);
+    const LocalRay rl = v.shift > 0 ? voxel::coarsen(r, v.shift) : r;
+    const int32_t root[3] = {0, 0, 0};
+    walk_node<kStats>(v, r, 0, root, 0, stats,
+                      [&](const uint32_t* cell, uint32_t child) { return leaf(rl, cell, v.attrs(child), v.prim(child)); });
+  }
 
-    struct Frame {
-      float t0[3], t1[3], tm[3];
-      uint32_t pos[3];
-      uint32_t first_child, mask;
-      uint32_t todo;  ///< slots still to visit, 4 bits each (slot | 8), nearest first
+  /// A batch: rays are mapped to the local frame, grouped by direction octant (keeping their
+  /// order, so neighbours in the batch stay neighbours) and traced in packets of the CPU's
+  /// vector width; a lone ray (or a CPU without AVX2) uses the single-ray traversal.
+  /// lane_leaf(i, lr, cell, attrs, prim) is called for ray i (index into the batch) and
+  /// returns true when the ray is done; done(i) is called for rays that miss by definition.
+  template <bool kStats, class LaneLeaf>
+  static void batch(const SparseVoxelOctree& s, std::span<const Ray> rays, TraceStats& stats, LaneLeaf&& lane_leaf) {
+    if constexpr (kStats) stats.rays += rays.size();
+    if (s.leaf_attrs_.empty() || rays.empty()) return;
+    const SvoView v = view(s);
+    struct Scratch {
+      std::vector<LocalRay> local;
+      std::vector<uint32_t> order;
     };
-    Frame stack[kMaxVoxelDepth + 1];
-    Frame* f = stack;
-    for (int i = 0; i < 3; ++i) {
-      f->pos[i] = 0;
-      if ((r.fixed >> i) & 1u) {
-        if (!(0.0f <= r.o[i] && r.o[i] < static_cast<float>(res))) return;
-        f->t0[i] = -kInf;
-        f->t1[i] = kInf;
-      } else {
-        const bool neg = (mirror >> i) & 1u;
-        f->t0[i] = ((neg ? static_cast<float>(res) : 0.0f) - r.o[i]) * r.inv[i];
-        f->t1[i] = ((neg ? 0.0f : static_cast<float>(res)) - r.o[i]) * r.inv[i];
-      }
+    thread_local Scratch scratch;
+    std::vector<LocalRay>& local = scratch.local;
+    std::vector<uint32_t>& order = scratch.order;
+    local.resize(rays.size());
+    order.resize(rays.size());
+    uint32_t count[9] = {};
+    const voxel::LocalFrame frame(s.grid_);
+    for (size_t i = 0; i < rays.size(); ++i) {
+      LocalRay& r = local[i];
+      if (!voxel::make_local_ray(rays[i], frame, r)) r.mirror = 8;  // misses by definition
+      ++count[r.mirror];
     }
-    f->first_child = nodes[0].first_child;
-    f->mask = nodes[0].mask;
+    uint32_t start[9];
+    uint32_t sum = 0;
+    for (int k = 0; k < 9; ++k) {
+      start[k] = sum;
+      sum += count[k];
+    }
+    for (size_t i = 0; i < rays.size(); ++i) order[start[local[i].mirror]++] = static_cast<uint32_t>(i);
+    const uint32_t valid = start[7];  // after the loop start[k] is the end of octant k
 
-    int level = 0;
-    uint32_t half = res >> 1;  // side of the current node's children, in voxels
-    for (;;) {
-      // Entering node f: mid planes, then the slots the ray crosses in order (the first one,
-      // then across each mid plane crossed inside the node, nearest first), keeping the
-      // occupied ones.
-      if constexpr (kStats) ++stats.nodes_visited;
-      {
-        const float te = std::max(std::max(f->t0[0], f->t0[1]), std::max(f->t0[2], r.tmin));
-        const float tx = std::min(std::min(f->t1[0], f->t1[1]), std::min(f->t1[2], r.tmax));
-        if (!(te < tx)) goto pop;  // only the root can get here (nodes are entered with te < tx)
-        float tm[3];
-        for (int i = 0; i < 3; ++i) {
-          const float mid = static_cast<float>(f->pos[i] + half);
-          tm[i] = ((r.fixed >> i) & 1u) ? (r.o[i] >= mid ? -kInf : kInf) : (mid - r.o[i]) * r.inv[i];
-          f->tm[i] = tm[i];
-        }
-        uint32_t a = (tm[0] <= te ? 1u : 0u) | (tm[1] <= te ? 2u : 0u) | (tm[2] <= te ? 4u : 0u);
-        int o0 = 0, o1 = 1, o2 = 2;
-        if (tm[o1] < tm[o0]) std::swap(o0, o1);
-        if (tm[o2] < tm[o1]) std::swap(o1, o2);
-        if (tm[o1] < tm[o0]) std::swap(o0, o1);
-        const uint32_t occ = f->mask;
-        uint32_t todo = 0, bits = 0;
-        const auto add = [&](uint32_t slot) {
-          if ((occ >> (slot ^ mirror)) & 1u) {
-            todo |= (slot | 8u) << bits;
-            bits += 4;
-          }
-        };
-        add(a);
-        for (const int o : {o0, o1, o2}) {
-          if (!((a >> o) & 1u) && tm[o] < tx) {
-            a |= 1u << o;
-            add(a);
-          }
-        }
-        f->todo = todo;
+    const int width = s.grid_.depth == 0 ? 1 : voxel::svo_packet_width();
+    const int32_t root[3] = {0, 0, 0};
+    const auto single = [&](uint32_t i) {
+      const LocalRay& r = local[i];
+      if (s.grid_.depth == 0) {
+        const uint32_t cell[3] = {0, 0, 0};
+        if constexpr (kStats) ++stats.triangles_tested;
+        lane_leaf(i, r, cell, s.leaf_attrs_[0], 0u);
+        return;
       }
-      for (;;) {
-        while (f->todo == 0) {
-        pop:
-          if (level == 0) return;
-          --f;
-          --level;
-          half <<= 1;
+      const LocalRay rl = v.shift > 0 ? voxel::coarsen(r, v.shift) : r;
+      walk_node<kStats>(v, r, 0, root, 0, stats, [&](const uint32_t* cell, uint32_t child) {
+        return lane_leaf(i, rl, cell, v.attrs(child), v.prim(child));
+      });
+    };
+    if (width <= 1) {
+      for (uint32_t k = 0; k < valid; ++k) single(order[k]);
+      return;
+    }
+    PacketRays p;
+    LocalRay rl[16];
+    uint32_t idx[16];
+    for (uint32_t begin = 0, octant_end = 0; begin < valid; begin = std::min(begin + static_cast<uint32_t>(width), octant_end)) {
+      // Packets never straddle two octants.
+      const uint32_t mirror = local[order[begin]].mirror;
+      octant_end = start[mirror];
+      const uint32_t n = std::min(static_cast<uint32_t>(width), octant_end - begin);
+      if (n == 1) {
+        single(order[begin]);
+        continue;
+      }
+      uint32_t fixed = 0;  // some lane does not move along some axis
+      for (int j = 0; j < width; ++j) {
+        const uint32_t i = order[begin + std::min(static_cast<uint32_t>(j), n - 1)];
+        const LocalRay& r = local[i];
+        idx[j] = i;
+        fixed |= r.fixed;
+        for (int a = 0; a < 3; ++a) {
+          p.o[a][j] = r.o[a];
+          p.inv[a][j] = ((r.fixed >> a) & 1u) ? kInf : r.inv[a];
         }
-        const uint32_t a = f->todo & 7u;
-        f->todo >>= 4;
-        float ct0[3], ct1[3];
-        for (int i = 0; i < 3; ++i) {
-          const bool far = (a >> i) & 1u;
-          ct0[i] = far ? f->tm[i] : f->t0[i];
-          ct1[i] = far ? f->t1[i] : f->tm[i];
-        }
-        const float cte = std::max(std::max(ct0[0], ct0[1]), std::max(ct0[2], r.tmin));
-        const float ctx = std::min(std::min(ct1[0], ct1[1]), std::min(ct1[2], r.tmax));
-        if (!(cte < ctx)) continue;
-        const uint32_t real = a ^ mirror;
-        const uint32_t child = f->first_child + kPopcount8[f->mask & ((1u << real) - 1u)];
-        uint32_t pos[3];
-        for (int i = 0; i < 3; ++i) pos[i] = f->pos[i] + (((real >> i) & 1u) ? half : 0u);
-        if (level + 1 == leaf_level) {
-          if constexpr (kStats) ++stats.triangles_tested;
-          const uint32_t cell[3] = {pos[0] >> shift, pos[1] >> shift, pos[2] >> shift};
-          const bool stop = shift == 0 ? leaf(rl, cell, s.leaf_attrs_[child], child)
-                                       : leaf(rl, cell, s.inner_attrs_[child], n_leaves + child);
-          if (stop) return;
-          continue;
-        }
-        Frame* c = f + 1;
-        for (int i = 0; i < 3; ++i) {
-          c->t0[i] = ct0[i];
-          c->t1[i] = ct1[i];
-          c->pos[i] = pos[i];
-        }
-        const SvoNode node = nodes[child];
-        c->first_child = node.first_child;
-        c->mask = node.mask;
-        f = c;
-        ++level;
-        half >>= 1;
-        break;  // enter the child
+        p.tmin[j] = r.tmin;
+        p.tmax[j] = r.tmax;
+        if (j < static_cast<int>(n)) rl[j] = v.shift > 0 ? voxel::coarsen(r, v.shift) : r;
+      }
+      const uint32_t lanes = n >= 32 ? ~0u : (1u << n) - 1u;
+      const auto leaf = [&](int j, const uint32_t* cell, uint32_t child) {
+        return lane_leaf(idx[j], rl[j], cell, v.attrs(child), v.prim(child));
+      };
+      const auto scalar = [&](int j, int level, const int32_t* c, uint32_t node) {
+        return walk_node<kStats>(v, local[idx[j]], level, c, node, stats, [&](const uint32_t* cell, uint32_t child) {
+          return leaf(j, cell, child);
+        });
+      };
+      if (fixed) {
+        if (width == 16) svo_avx512::packet_walk<kStats, true>(v, p, mirror, lanes, stats, leaf, scalar);
+        else svo_avx2::packet_walk<kStats, true>(v, p, mirror, lanes, stats, leaf, scalar);
+      } else {
+        if (width == 16) svo_avx512::packet_walk<kStats, false>(v, p, mirror, lanes, stats, leaf, scalar);
+        else svo_avx2::packet_walk<kStats, false>(v, p, mirror, lanes, stats, leaf, scalar);
       }
     }
   }
 
   template <bool kStats>
-  static Hit closest(const SparseVoxelOctree& s, const Ray& ray, uint32_t skip, TraceStats& stats) {
-    Hit hit;
+  static void closest(const SparseVoxelOctree& s, std::span<const Ray> rays, std::span<const uint32_t> skip,
+                      std::span<Hit> hits, TraceStats& stats) {
+    for (size_t i = 0; i < rays.size(); ++i) hits[i] = Hit{};
     const VoxelHitMode mode = s.mode_;
-    walk<kStats>(s, ray, stats, [&](const LocalRay& r, const uint32_t* cell, const VoxelAttributes& attrs, uint32_t prim) {
+    batch<kStats>(s, rays, stats, [&](uint32_t i, const LocalRay& r, const uint32_t* cell, const VoxelAttributes& attrs,
+                                      uint32_t prim) {
       CellHit h;
-      if (attrs.material == skip || !voxel::hit_cell(r, cell, attrs, mode, h)) return false;
+      if ((!skip.empty() && attrs.material == skip[i]) || !voxel::hit_cell(r, cell, attrs, mode, h)) return false;
+      Hit& hit = hits[i];
       hit.t = h.t;
       hit.prim = prim;
       hit.ng = h.n;
       return true;
     });
-    return hit;
   }
 
   template <bool kStats>
-  static Vec3 transmit(const SparseVoxelOctree& s, const Ray& ray, TraceStats& stats) {
-    Vec3 tr{1.0f, 1.0f, 1.0f};
+  static void transmit(const SparseVoxelOctree& s, std::span<const Ray> rays, std::span<Vec3> out, TraceStats& stats) {
+    for (size_t i = 0; i < rays.size(); ++i) out[i] = Vec3{1.0f, 1.0f, 1.0f};
     const VoxelHitMode mode = s.mode_;
-    walk<kStats>(s, ray, stats, [&](const LocalRay& r, const uint32_t* cell, const VoxelAttributes& attrs, uint32_t) {
+    batch<kStats>(s, rays, stats, [&](uint32_t i, const LocalRay& r, const uint32_t* cell, const VoxelAttributes& attrs,
+                                      uint32_t) {
+      // Both traversals only report leaves the ray crosses with positive length (the kernel's
+      // own test), so in cube mode every reported voxel is hit.
       CellHit h;
-      if (!voxel::hit_cell(r, cell, attrs, mode, h)) return false;
+      if (mode != VoxelHitMode::Cubes && !voxel::hit_cell(r, cell, attrs, mode, h)) return false;
       if (!(attrs.transparency > 0.0f)) {
-        tr = Vec3{};
+        out[i] = Vec3{};
         return true;
       }
-      tr *= Vec3(attrs.transparency);
+      out[i] *= Vec3(attrs.transparency);
       return false;
     });
-    return tr;
   }
 };
 
@@ -212,26 +433,23 @@ void SparseVoxelOctree::intersect_skipping(std::span<const Ray> rays, std::span<
                                            std::span<Hit> hits, TraceStats* stats) const {
   if (hits.size() < rays.size()) throw Error("svo: hits span smaller than rays span");
   if (!skip.empty() && skip.size() < rays.size()) throw Error("svo: skip span smaller than rays span");
-  const auto skip_of = [&](size_t i) { return skip.empty() ? kNoHit : skip[i]; };
+  TraceStats local;
   if (stats) {
-    TraceStats local;
-    for (size_t i = 0; i < rays.size(); ++i) hits[i] = SvoTraversal::closest<true>(*this, rays[i], skip_of(i), local);
+    SvoTraversal::closest<true>(*this, rays, skip, hits, local);
     *stats += local;
   } else {
-    TraceStats unused;
-    for (size_t i = 0; i < rays.size(); ++i) hits[i] = SvoTraversal::closest<false>(*this, rays[i], skip_of(i), unused);
+    SvoTraversal::closest<false>(*this, rays, skip, hits, local);
   }
 }
 
 void SparseVoxelOctree::transmittance(std::span<const Ray> rays, std::span<Vec3> out, TraceStats* stats) const {
   if (out.size() < rays.size()) throw Error("svo: output span smaller than rays span");
+  TraceStats local;
   if (stats) {
-    TraceStats local;
-    for (size_t i = 0; i < rays.size(); ++i) out[i] = SvoTraversal::transmit<true>(*this, rays[i], local);
+    SvoTraversal::transmit<true>(*this, rays, out, local);
     *stats += local;
   } else {
-    TraceStats unused;
-    for (size_t i = 0; i < rays.size(); ++i) out[i] = SvoTraversal::transmit<false>(*this, rays[i], unused);
+    SvoTraversal::transmit<false>(*this, rays, out, local);
   }
 }
 

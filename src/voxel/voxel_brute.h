@@ -9,8 +9,11 @@
 /// bit for bit (see the semantics in include/specula/voxel_tracer.h).
 #pragma once
 
+#include <immintrin.h>
+
 #include <algorithm>
 #include <cmath>
+#include <cstddef>
 #include <cstdint>
 #include <string>
 #include <vector>
@@ -61,6 +64,48 @@ inline bool make_local_ray(const Ray& ray, const VoxelGrid& g, LocalRay& r) {
     }
   }
   return r.fixed != 7u;
+}
+
+/// What make_local_ray needs of a grid, computed once per batch.
+struct LocalFrame {
+  float origin[3];
+  float scale;  ///< resolution / side, as make_local_ray computes it
+
+  explicit LocalFrame(const VoxelGrid& g)
+      : origin{g.origin.x, g.origin.y, g.origin.z}, scale(static_cast<float>(g.resolution()) / g.side) {}
+};
+
+/// make_local_ray for batches, in SSE (the x86-64 baseline): the same checks (tmin <= tmax is
+/// false for NaN, and the finiteness of the local origin and direction implies that of the
+/// world ones) and bit for bit the same LocalRay, since SSE arithmetic is IEEE single
+/// precision like the scalar code.
+inline bool make_local_ray(const Ray& ray, const LocalFrame& f, LocalRay& r) {
+  static_assert(offsetof(Ray, tmin) == 12 && offsetof(Ray, dir) == 16 && offsetof(Ray, tmax) == 28);
+  static_assert(offsetof(LocalRay, d) == 12 && offsetof(LocalRay, inv) == 24 && offsetof(LocalRay, tmin) == 36);
+  if (!(ray.tmin <= ray.tmax)) return false;
+  const __m128 max_finite = _mm_set1_ps(3.40282347e38f);
+  const __m128 abs_mask = _mm_castsi128_ps(_mm_set1_epi32(0x7FFFFFFF));
+  const __m128 scale = _mm_set1_ps(f.scale);
+  const __m128 o = _mm_mul_ps(_mm_sub_ps(_mm_loadu_ps(&ray.org.x), _mm_setr_ps(f.origin[0], f.origin[1], f.origin[2], 0.0f)), scale);
+  const __m128 d = _mm_mul_ps(_mm_loadu_ps(&ray.dir.x), scale);
+  const int finite = _mm_movemask_ps(_mm_and_ps(_mm_cmple_ps(_mm_and_ps(o, abs_mask), max_finite),
+                                                _mm_cmple_ps(_mm_and_ps(d, abs_mask), max_finite)));
+  if ((finite & 7) != 7) return false;
+  const __m128 inv = _mm_div_ps(_mm_set1_ps(1.0f), d);
+  const __m128 fix = _mm_or_ps(_mm_cmpeq_ps(d, _mm_setzero_ps()),
+                               _mm_cmpnle_ps(_mm_and_ps(inv, abs_mask), max_finite));  // also NaN
+  const uint32_t fixed = static_cast<uint32_t>(_mm_movemask_ps(fix)) & 7u;
+  const uint32_t mirror = static_cast<uint32_t>(_mm_movemask_ps(_mm_cmplt_ps(d, _mm_setzero_ps()))) & ~fixed & 7u;
+  // Overlapping 4-lane stores, in field order: each one's fourth lane is overwritten next.
+  _mm_storeu_ps(r.o, o);
+  _mm_storeu_ps(r.d, _mm_andnot_ps(fix, d));
+  _mm_storeu_ps(r.inv, _mm_andnot_ps(fix, inv));
+  r.tmin = ray.tmin;
+  r.tmax = ray.tmax;
+  r.scale = f.scale;
+  r.mirror = mirror;
+  r.fixed = fixed;
+  return fixed != 7u;
 }
 
 /// The same ray in the frame of the grid \p k levels coarser (coordinates / 2^k). Exact (power
@@ -167,6 +212,11 @@ inline bool hit_cell(const LocalRay& r, const uint32_t c[3], const VoxelAttribut
   h.n = a.normal;
   return true;
 }
+
+/// Width of the octree's packet traversal on this CPU (16 with AVX-512, 8 with AVX2, 1 = single
+/// rays only), capped by set_svo_packet_width_limit (tests use it to run every kernel).
+int svo_packet_width();
+void set_svo_packet_width_limit(int width);
 
 /// Throws specula::Error unless \p set is valid for a tracer (see build_voxel_tracer).
 void validate_set(const VoxelSet& set, const char* who);
