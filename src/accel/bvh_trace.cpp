@@ -109,6 +109,7 @@ struct BvhView {
   const BvhTriangle4* blocks;  ///< the leaves' triangles (lanes carry scene indices)
   const Vec3* trans;  ///< per scene triangle; null when all are opaque
   bool empty;
+  bool packets;  ///< trace coherent groups of consecutive rays as packets (BvhOptions::packets)
 };
 
 }  // namespace
@@ -159,7 +160,8 @@ class BvhTraversal {
                            : static_cast<const void*>(bvh.wide_.data()),
                    bvh.tri4_.data(),
                    bvh.transmittance_.empty() ? nullptr : bvh.transmittance_.data(),
-                   bvh.tris_.empty()};
+                   bvh.tris_.empty(),
+                   bvh.packets_};
   }
 
   template <bool kStats>
