@@ -28,6 +28,12 @@
 // hits. Child ordering follows Embree's wide single-ray traversal: one hit child is taken
 // directly, two with one compare, more are pushed and insertion-sorted on the stack top;
 // pushed subtrees are prefetched.
+//
+// Packets (bvh_packet.inc, included into every kernel): groups of 16 consecutive coherent rays
+// of a batch go through the tree together with a frustum test per node, seed 004's early-in
+// (the first active ray's slab test) and exact per-ray tests where a ray mask is needed; they
+// hand subtrees that few rays enter to the single-ray walks above (closest_walk, transmit_walk),
+// so every ray sees exactly the triangles the single-ray kernel would test it against.
 #include <emmintrin.h>  // SSE2: x86-64 baseline
 #include <immintrin.h>  // AVX2 kernel: compiled per function (target attribute), chosen at run time
 #include <xmmintrin.h>  // _mm_prefetch
