@@ -1,7 +1,8 @@
 // `specula bench trace` (owner: accel): BVH build time and tracing throughput for the ray kinds
 // a Whitted renderer shoots (primary, shadow, reflection, refraction, diffuse bounce) and
 // incoherent random rays, one thread and all threads, and Embree on the very same rays when
-// compiled in; a table, or JSON with --json.
+// compiled in; then coherent primary and shadow rays in 4x4 pixel blocks traced as 16-ray
+// packets, beside Embree's rtcIntersect16 / rtcOccluded16; a table, or JSON with --json.
 #include <algorithm>
 #include <cmath>
 #include <cstdio>
@@ -40,11 +41,27 @@ struct RaySet {
   std::vector<Ray> rays;
 };
 
+/// Pixel indices of a width x height image in 4x4 blocks (16 consecutive = one block; blocks
+/// cut by the image border are shorter), the order the Whitted integrator traces primary rays in.
+std::vector<size_t> block_order(int width, int height) {
+  std::vector<size_t> order;
+  order.reserve(static_cast<size_t>(width) * static_cast<size_t>(height));
+  for (int by = 0; by < height; by += 4)
+    for (int bx = 0; bx < width; bx += 4)
+      for (int y = by; y < std::min(by + 4, height); ++y)
+        for (int x = bx; x < std::min(bx + 4, width); ++x)
+          order.push_back(static_cast<size_t>(y) * static_cast<size_t>(width) + static_cast<size_t>(x));
+  return order;
+}
+
 /// Deterministic per-pixel random numbers (the project's one integer hash), so every run
 /// traces the same rays.
 float to_unit_float(uint32_t v) { return static_cast<float>(v >> 8) * (1.0f / 16777216.0f); }
 
-std::vector<RaySet> make_ray_sets(const Scene& scene, const Tracer& tracer, int width, int height) {
+/// The ray kinds traced one by one, and in \p packet_sets the coherent kinds for packets: the
+/// same primary rays in 4x4 pixel blocks, and the shadow rays of their hits in that order.
+std::vector<RaySet> make_ray_sets(const Scene& scene, const Tracer& tracer, int width, int height,
+                                  std::vector<RaySet>& packet_sets) {
   const PinholeCamera camera(scene.cameras.front(), width, height);
   RaySet primary{"primary", false, {}};
   primary.rays.reserve(static_cast<size_t>(width) * static_cast<size_t>(height));
@@ -57,28 +74,37 @@ std::vector<RaySet> make_ray_sets(const Scene& scene, const Tracer& tracer, int 
   RaySet shadow{"shadow", true, {}}, reflection{"reflection", false, {}}, refraction{"refraction", false, {}},
       diffuse{"diffuse", false, {}};
   const Light* light = scene.lights.empty() ? nullptr : &scene.lights.front();
+  // The surface point of primary hit i, offset above (towards the camera) and below.
+  const auto surface = [&](size_t i, Vec3& n, Vec3& above, Vec3& below) {
+    const Hit& h = hits[i];
+    const Ray& pr = primary.rays[i];
+    const Vec3 p = pr.org + pr.dir * h.t;
+    n = dot(pr.dir, h.ng) < 0.0f ? h.ng : -h.ng;  // faces the incoming ray
+    above = offset_ray_origin(p, n);
+    below = offset_ray_origin(p, -n);
+  };
+  const auto shadow_ray = [&](const Vec3& n, const Vec3& above) {
+    Ray s;
+    s.org = above;
+    if (light->type == LightType::Directional) {
+      s.dir = normalize(-light->direction);
+      s.tmax = kInf;
+    } else {
+      const Vec3 to = light->position - above;
+      const float dist = length(to);
+      s.dir = dist > 0.0f ? to / dist : n;
+      s.tmax = dist * (1.0f - 1e-4f);
+    }
+    return s;
+  };
   for (size_t i = 0; i < hits.size(); ++i) {
     const Hit& h = hits[i];
     if (!h.hit()) continue;
     const Ray& pr = primary.rays[i];
-    const Vec3 p = pr.org + pr.dir * h.t;
     const bool front = dot(pr.dir, h.ng) < 0.0f;
-    const Vec3 n = front ? h.ng : -h.ng;  // faces the incoming ray
-    const Vec3 above = offset_ray_origin(p, n), below = offset_ray_origin(p, -n);
-    if (light) {
-      Ray s;
-      s.org = above;
-      if (light->type == LightType::Directional) {
-        s.dir = normalize(-light->direction);
-        s.tmax = kInf;
-      } else {
-        const Vec3 to = light->position - above;
-        const float dist = length(to);
-        s.dir = dist > 0.0f ? to / dist : n;
-        s.tmax = dist * (1.0f - 1e-4f);
-      }
-      shadow.rays.push_back(s);
-    }
+    Vec3 n, above, below;
+    surface(i, n, above, below);
+    if (light) shadow.rays.push_back(shadow_ray(n, above));
     Ray refl;
     refl.org = above;
     refl.dir = normalize(reflect(pr.dir, n));
@@ -123,6 +149,19 @@ std::vector<RaySet> make_ray_sets(const Scene& scene, const Tracer& tracer, int 
     ray.dir = normalize(dir);
     random.rays.push_back(ray);
   }
+  // Packets: the same primary rays in 4x4 pixel blocks, the shadow rays of their hits in that order.
+  RaySet primary_packets{"primary", false, {}}, shadow_packets{"shadow", true, {}};
+  for (const size_t i : block_order(width, height)) {
+    primary_packets.rays.push_back(primary.rays[i]);
+    if (!hits[i].hit() || !light) continue;
+    Vec3 n, above, below;
+    surface(i, n, above, below);
+    shadow_packets.rays.push_back(shadow_ray(n, above));
+  }
+  packet_sets.clear();
+  packet_sets.push_back(std::move(primary_packets));
+  if (light) packet_sets.push_back(std::move(shadow_packets));
+
   std::vector<RaySet> sets;
   sets.push_back(std::move(primary));
   if (light) sets.push_back(std::move(shadow));
@@ -163,11 +202,15 @@ double trace_mrays(const Tracer& tracer, const RaySet& set, int threads, int rep
   if (threads <= 1) {
     ms = time_ms(repeat, [&] { chunk(0, rays.size()); });
   } else {
+    // Work items of 1024 rays (64 packets of 16: every thread's spans start on a packet).
+    constexpr size_t kChunk = 1024;
+    const size_t chunks = (rays.size() + kChunk - 1) / kChunk;
     tbb::task_arena arena(threads);
     ms = time_ms(repeat, [&] {
       arena.execute([&] {
-        tbb::parallel_for(tbb::blocked_range<size_t>(0, rays.size(), 1024),
-                          [&](const tbb::blocked_range<size_t>& r) { chunk(r.begin(), r.end()); });
+        tbb::parallel_for(tbb::blocked_range<size_t>(0, chunks, 1), [&](const tbb::blocked_range<size_t>& r) {
+          chunk(r.begin() * kChunk, std::min(rays.size(), r.end() * kChunk));
+        });
       });
     });
   }
@@ -200,6 +243,7 @@ int bench_trace(const BenchTraceOptions& options) {
 
   // Build: one thread, then all threads.
   BvhOptions bopt = options.bvh;
+  bopt.packets = false;  // the single-ray rows: every ray alone, as rtcIntersect1
   std::vector<double> b1, bn;
   BuildInfo info;
   std::unique_ptr<Tracer> bvh;
@@ -254,7 +298,13 @@ int bench_trace(const BenchTraceOptions& options) {
                   zones.count, zones.triangles, zones.nodes, static_cast<double>(zones.bytes) / 1048576.0, zones.ms);
   }
 
-  const std::vector<RaySet> sets = make_ray_sets(scene, *bvh, options.width, options.height);
+  std::vector<RaySet> packet_sets;
+  const std::vector<RaySet> sets = make_ray_sets(scene, *bvh, options.width, options.height, packet_sets);
+  // The same tree, with coherent groups of 16 rays traced as packets.
+  BvhOptions popt = options.bvh;
+  popt.packets = true;
+  popt.threads = threads;
+  const std::unique_ptr<Tracer> bvh_packets = build_tracer(AccelKind::Bvh, input, popt);
 
   bool with_embree = false;
 #ifdef SPECULA_HAVE_EMBREE
@@ -301,6 +351,35 @@ int bench_trace(const BenchTraceOptions& options) {
 #endif
     rows.push_back({set.name, set.rays.size(), "Mrays/s", s1, sn, x1, xn, false});
   }
+  // Packets: ours against rtcIntersect16 / rtcOccluded16 on the same block-ordered rays, with
+  // the share of the rays our tracer actually put in packets.
+  std::vector<Row> packet_rows;
+  std::vector<double> packet_share;
+  for (const RaySet& set : packet_sets) {
+    const double s1 = trace_mrays(*bvh_packets, set, 1, repeat);
+    const double sn = trace_mrays(*bvh_packets, set, threads, repeat);
+    double x1 = 0, xn = 0;
+#ifdef SPECULA_HAVE_EMBREE
+    if (with_embree) {
+      for (Tracer* e : {embree1.get(), embreen.get()}) static_cast<EmbreeTracer*>(e)->use_packets(true);
+      x1 = trace_mrays(*embree1, set, 1, repeat);
+      xn = trace_mrays(*embreen, set, threads, repeat);
+      for (Tracer* e : {embree1.get(), embreen.get()}) static_cast<EmbreeTracer*>(e)->use_packets(false);
+    }
+#endif
+    packet_rows.push_back({set.name, set.rays.size(), "Mrays/s", s1, sn, x1, xn, false});
+    TraceStats st;
+    if (!set.rays.empty()) {
+      if (set.shadow) {
+        std::vector<Vec3> tr(set.rays.size());
+        bvh_packets->transmittance(set.rays, tr, &st);
+      } else {
+        std::vector<Hit> hits(set.rays.size());
+        bvh_packets->intersect(set.rays, hits, &st);
+      }
+    }
+    packet_share.push_back(st.rays > 0 ? static_cast<double>(st.packet_rays) / static_cast<double>(st.rays) : 0.0);
+  }
   const auto ratio = [](const Row& r, double ours, double theirs) {
     if (ours <= 0.0 || theirs <= 0.0) return 0.0;
     return r.lower_is_better ? theirs / ours : ours / theirs;
@@ -342,6 +421,27 @@ int bench_trace(const BenchTraceOptions& options) {
       kinds.push_back(k);
     }
     j["results"] = kinds;
+    nlohmann::ordered_json packets = nlohmann::ordered_json::array();
+    for (size_t i = 0; i < packet_rows.size(); ++i) {
+      const Row& r = packet_rows[i];
+      nlohmann::ordered_json k;
+      k["kind"] = r.name;
+      k["count"] = r.count;
+      k["unit"] = r.unit;
+      k["order"] = "4x4 pixel blocks";
+      k["in_packets"] = packet_share[i];
+      k["specula_1t"] = r.s1;
+      k["specula_nt"] = r.sn;
+      if (with_embree) {
+        k["embree"] = r.name == "shadow" ? "rtcOccluded16" : "rtcIntersect16";
+        k["embree_1t"] = r.e1;
+        k["embree_nt"] = r.en;
+        k["ratio_1t"] = ratio(r, r.s1, r.e1);
+        k["ratio_nt"] = ratio(r, r.sn, r.en);
+      }
+      packets.push_back(k);
+    }
+    j["packets"] = packets;
     std::printf("%s\n", j.dump(2).c_str());
     return 0;
   }
@@ -363,6 +463,29 @@ int bench_trace(const BenchTraceOptions& options) {
                   rt(r.sn, r.en).c_str());
     }
     std::printf("\n");
+  }
+  if (!packet_rows.empty()) {
+    std::printf("\npackets: 16 rays in 4x4 pixel blocks; Embree rtcIntersect16 / rtcOccluded16 (coherent context)\n");
+    std::printf("%-10s %9s %8s | %12s %12s", "", "rays", "in pkts", "specula 1T",
+                ("specula " + std::to_string(threads) + "T").c_str());
+    if (with_embree)
+      std::printf(" | %12s %12s | %9s %9s", "embree16 1T", ("embree16 " + std::to_string(threads) + "T").c_str(),
+                  "ours/e 1T", ("ours/e " + std::to_string(threads) + "T").c_str());
+    std::printf("\n");
+    for (size_t i = 0; i < packet_rows.size(); ++i) {
+      const Row& r = packet_rows[i];
+      std::printf("%-10s %9zu %8s | %12s %12s", r.name.c_str(), r.count, fmt("%.0f%%", 100.0 * packet_share[i]).c_str(),
+                  fmt("%.2f", r.s1).c_str(), fmt("%.2f", r.sn).c_str());
+      if (with_embree) {
+        const auto rt = [&](double ours, double theirs) {
+          const double x = ratio(r, ours, theirs);
+          return x > 0.0 ? fmt("%.2fx", x) : std::string("-");
+        };
+        std::printf(" | %12s %12s | %9s %9s", fmt("%.2f", r.e1).c_str(), fmt("%.2f", r.en).c_str(),
+                    rt(r.s1, r.e1).c_str(), rt(r.sn, r.en).c_str());
+      }
+      std::printf("\n");
+    }
   }
   if (with_embree) std::printf("(ratio > 1: specula faster; build ratio = embree ms / specula ms)\n");
 #ifndef SPECULA_HAVE_EMBREE

@@ -60,9 +60,54 @@ EmbreeTracer::~EmbreeTracer() {
   if (impl_->device) rtcReleaseDevice(impl_->device);
 }
 
+namespace {
+/// Lane k of a 16-ray packet from \p r (or an invalid lane when r is null).
+template <class Ray16>
+void set_lane(Ray16& p, int* valid, int k, const Ray* r) {
+  valid[k] = r ? -1 : 0;
+  const Ray fallback;
+  const Ray& x = r ? *r : fallback;
+  p.org_x[k] = x.org.x, p.org_y[k] = x.org.y, p.org_z[k] = x.org.z;
+  p.dir_x[k] = x.dir.x, p.dir_y[k] = x.dir.y, p.dir_z[k] = x.dir.z;
+  p.tnear[k] = x.tmin;
+  p.tfar[k] = x.tmax;
+  p.time[k] = 0.0f;
+  p.mask[k] = 0xFFFFFFFFu;
+  p.id[k] = 0;
+  p.flags[k] = 0;
+}
+}  // namespace
+
 void EmbreeTracer::intersect(std::span<const Ray> rays, std::span<Hit> hits, TraceStats* stats) const {
   RTCIntersectContext ctx;
   rtcInitIntersectContext(&ctx);
+  if (packets_) {
+    ctx.flags = RTC_INTERSECT_CONTEXT_FLAG_COHERENT;
+    for (size_t b = 0; b < rays.size(); b += 16) {
+      alignas(64) RTCRayHit16 rh;
+      alignas(64) int valid[16];
+      for (int k = 0; k < 16; ++k) {
+        const size_t i = b + static_cast<size_t>(k);
+        set_lane(rh.ray, valid, k, i < rays.size() ? &rays[i] : nullptr);
+        rh.hit.geomID[k] = RTC_INVALID_GEOMETRY_ID;
+        rh.hit.instID[0][k] = RTC_INVALID_GEOMETRY_ID;
+      }
+      rtcIntersect16(valid, impl_->scene, &ctx, &rh);
+      for (int k = 0; k < 16 && b + static_cast<size_t>(k) < rays.size(); ++k) {
+        Hit h;
+        if (rh.hit.geomID[k] != RTC_INVALID_GEOMETRY_ID) {
+          h.t = rh.ray.tfar[k];
+          h.prim = rh.hit.primID[k];
+          h.u = rh.hit.u[k];
+          h.v = rh.hit.v[k];
+          h.ng = normalize(Vec3{rh.hit.Ng_x[k], rh.hit.Ng_y[k], rh.hit.Ng_z[k]});
+        }
+        hits[b + static_cast<size_t>(k)] = h;
+      }
+    }
+    if (stats) stats->rays += rays.size();
+    return;
+  }
   for (size_t i = 0; i < rays.size(); ++i) {
     const Ray& r = rays[i];
     RTCRayHit rh;
@@ -93,6 +138,22 @@ void EmbreeTracer::intersect(std::span<const Ray> rays, std::span<Hit> hits, Tra
 void EmbreeTracer::transmittance(std::span<const Ray> rays, std::span<Vec3> out, TraceStats* stats) const {
   RTCIntersectContext ctx;
   rtcInitIntersectContext(&ctx);
+  if (packets_) {
+    ctx.flags = RTC_INTERSECT_CONTEXT_FLAG_COHERENT;
+    for (size_t b = 0; b < rays.size(); b += 16) {
+      alignas(64) RTCRay16 ray;
+      alignas(64) int valid[16];
+      for (int k = 0; k < 16; ++k) {
+        const size_t i = b + static_cast<size_t>(k);
+        set_lane(ray, valid, k, i < rays.size() ? &rays[i] : nullptr);
+      }
+      rtcOccluded16(valid, impl_->scene, &ctx, &ray);
+      for (int k = 0; k < 16 && b + static_cast<size_t>(k) < rays.size(); ++k)
+        out[b + static_cast<size_t>(k)] = ray.tfar[k] < 0.0f ? Vec3{} : Vec3{1.0f, 1.0f, 1.0f};
+    }
+    if (stats) stats->rays += rays.size();
+    return;
+  }
   for (size_t i = 0; i < rays.size(); ++i) {
     const Ray& r = rays[i];
     RTCRay ray;

@@ -14,8 +14,10 @@
 namespace specula::cli {
 
 /// Triangle scene in Embree (RTC_BUILD_QUALITY_MEDIUM, one geometry). Queries use
-/// rtcIntersect1 / rtcOccluded1 per ray, like our single-ray traversal. transmittance() is a
-/// plain occlusion query (0 or 1): Embree sees every triangle as opaque here.
+/// rtcIntersect1 / rtcOccluded1 per ray, like our single-ray traversal, or, after
+/// use_packets(true), rtcIntersect16 / rtcOccluded16 on each group of 16 consecutive rays with a
+/// coherent-rays context (Embree's best on coherent packets). transmittance() is a plain
+/// occlusion query (0 or 1): Embree sees every triangle as opaque here.
 class EmbreeTracer final : public Tracer {
  public:
   /// \p threads: 0 = Embree's default (all hardware threads), else "threads=N".
@@ -30,9 +32,14 @@ class EmbreeTracer final : public Tracer {
   void transmittance(std::span<const Ray> rays, std::span<Vec3> out, TraceStats* stats = nullptr) const override;
   size_t memory_bytes() const override { return 0; }
 
+  /// Trace groups of 16 consecutive rays with rtcIntersect16 / rtcOccluded16 (from the start of
+  /// each span; a short last group runs with the missing lanes invalid).
+  void use_packets(bool on) { packets_ = on; }
+
  private:
   struct Impl;
   std::unique_ptr<Impl> impl_;
+  bool packets_ = false;
 };
 
 }  // namespace specula::cli

@@ -112,6 +112,8 @@ class Bvh final : public Tracer {
   std::span<const BvhNode> nodes() const { return nodes_; }
   /// The kernel the queries use (never Auto): which of the wide layouts below is filled.
   BvhKernel kernel() const { return kernel_; }
+  /// Whether batches trace coherent groups of rays as packets (BvhOptions::packets).
+  bool packets() const { return packets_; }
   /// The 4-wide traversal layout derived from nodes() (BvhKernel::Sse4; empty otherwise).
   std::span<const BvhWideNode> wide_nodes() const { return wide_; }
   /// The 8-wide traversal layout derived from nodes() (8-wide kernels; empty otherwise).
@@ -132,6 +134,7 @@ class Bvh final : public Tracer {
   std::vector<BvhWideNode8, detail::AlignedAllocator<BvhWideNode8>> wide8_;
   std::vector<BvhWideNode16, detail::AlignedAllocator<BvhWideNode16>> wide16_;
   BvhKernel kernel_ = BvhKernel::Sse4;
+  bool packets_ = true;
   std::vector<BvhTriangle, detail::AlignedAllocator<BvhTriangle>> tris_;
   std::vector<BvhTriangle4, detail::AlignedAllocator<BvhTriangle4>> tri4_;
   std::vector<uint32_t> prim_ids_;

@@ -36,11 +36,17 @@ struct TraceStats {
   uint64_t rays = 0;
   uint64_t nodes_visited = 0;
   uint64_t triangles_tested = 0;
+  /// Ray packets traced (tracers that group coherent rays; each packet's node visits and leaf
+  /// triangles count once in the two counters above, however many rays it carries).
+  uint64_t packets = 0;
+  uint64_t packet_rays = 0;  ///< rays traced inside those packets
 
   TraceStats& operator+=(const TraceStats& o) {
     rays += o.rays;
     nodes_visited += o.nodes_visited;
     triangles_tested += o.triangles_tested;
+    packets += o.packets;
+    packet_rays += o.packet_rays;
     return *this;
   }
 };

@@ -816,6 +816,7 @@ Bvh Bvh::build(const TriangleInput& input, const BvhOptions& options, BuildInfo*
   //    interior child first until a node has W children (as Embree's and Wald's wide BVH
   //    builders do).
   bvh.kernel_ = resolve_bvh_kernel(options.kernel);
+  bvh.packets_ = options.packets;
   if (!bvh.tris_.empty()) {
     const auto& bin = bvh.nodes_;
     const auto half_area_of = [&bin](uint32_t i) {

@@ -28,6 +28,12 @@
 // hits. Child ordering follows Embree's wide single-ray traversal: one hit child is taken
 // directly, two with one compare, more are pushed and insertion-sorted on the stack top;
 // pushed subtrees are prefetched.
+//
+// Packets (bvh_packet.inc, included into every kernel): groups of 16 consecutive coherent rays
+// of a batch go through the tree together with a frustum test per node, seed 004's early-in
+// (the first active ray's slab test) and exact per-ray tests where a ray mask is needed; they
+// hand subtrees that few rays enter to the single-ray walks above (closest_walk, transmit_walk),
+// so every ray sees exactly the triangles the single-ray kernel would test it against.
 #include <emmintrin.h>  // SSE2: x86-64 baseline
 #include <immintrin.h>  // AVX2 kernel: compiled per function (target attribute), chosen at run time
 #include <xmmintrin.h>  // _mm_prefetch
@@ -36,6 +42,7 @@
 #include <cmath>
 #include <cstddef>
 #include <cstdint>
+#include <cstring>
 #include <limits>
 
 #include "accel/triangles.h"
@@ -52,15 +59,15 @@ constexpr float kFarScale = 1.0f + 2.0f * (3.0f * 0x1p-24f) / (1.0f - 3.0f * 0x1
 
 /// max / min that ignore a NaN first operand (the semantics of SSE maxss / minss with the
 /// possibly-NaN value first): a slab with 0 * inf = NaN distances does not restrict the ray.
-inline float max_ignore_nan(float maybe_nan, float t) { return maybe_nan > t ? maybe_nan : t; }
-inline float min_ignore_nan(float maybe_nan, float t) { return maybe_nan < t ? maybe_nan : t; }
+SPECULA_ACCEL_INLINE float max_ignore_nan(float maybe_nan, float t) { return maybe_nan > t ? maybe_nan : t; }
+SPECULA_ACCEL_INLINE float min_ignore_nan(float maybe_nan, float t) { return maybe_nan < t ? maybe_nan : t; }
 
 /// Per-ray constants of the box test (the kernels broadcast them to their SIMD width).
 struct BoxRay {
   float sox, soy, soz, srx, sry, srz;  ///< origin and reciprocal direction
   bool zero_component;  ///< some direction component is +-0 (or denormal): rcp infinite
 
-  explicit BoxRay(const Ray& ray) {
+  explicit SPECULA_ACCEL_INLINE BoxRay(const Ray& ray) {
     sox = ray.org.x, soy = ray.org.y, soz = ray.org.z;
     srx = 1.0f / ray.dir.x, sry = 1.0f / ray.dir.y, srz = 1.0f / ray.dir.z;  // +-inf for +-0
     zero_component = !(std::isfinite(srx) && std::isfinite(sry) && std::isfinite(srz));
@@ -69,7 +76,7 @@ struct BoxRay {
 
 /// Scalar slab test of one node (used for the root only). Returns the entry distance within
 /// [tmin, tmax] or kInf on a miss.
-inline float intersect_box(const BvhNode& n, const BoxRay& r, float tmin, float tmax) {
+SPECULA_ACCEL_INLINE float intersect_box(const BvhNode& n, const BoxRay& r, float tmin, float tmax) {
   const float tx1 = (n.min.x - r.sox) * r.srx, tx2 = (n.max.x - r.sox) * r.srx;
   const float ty1 = (n.min.y - r.soy) * r.sry, ty2 = (n.max.y - r.soy) * r.sry;
   const float tz1 = (n.min.z - r.soz) * r.srz, tz2 = (n.max.z - r.soz) * r.srz;
@@ -86,7 +93,7 @@ inline float intersect_box(const BvhNode& n, const BoxRay& r, float tmin, float 
 
 /// Rays the traversal can answer at all: finite origin and direction, non-zero direction,
 /// tmin <= tmax. Everything else misses (and is fully transmitted), without touching the tree.
-inline bool valid_ray(const Ray& ray) {
+SPECULA_ACCEL_INLINE bool valid_ray(const Ray& ray) {
   return is_finite(ray.org) && is_finite(ray.dir) && (ray.dir.x != 0.0f || ray.dir.y != 0.0f || ray.dir.z != 0.0f) &&
          ray.tmin <= ray.tmax;
 }
@@ -109,6 +116,7 @@ struct BvhView {
   const BvhTriangle4* blocks;  ///< the leaves' triangles (lanes carry scene indices)
   const Vec3* trans;  ///< per scene triangle; null when all are opaque
   bool empty;
+  bool packets;  ///< trace coherent groups of consecutive rays as packets (BvhOptions::packets)
 };
 
 }  // namespace
@@ -159,7 +167,8 @@ class BvhTraversal {
                            : static_cast<const void*>(bvh.wide_.data()),
                    bvh.tri4_.data(),
                    bvh.transmittance_.empty() ? nullptr : bvh.transmittance_.data(),
-                   bvh.tris_.empty()};
+                   bvh.tris_.empty(),
+                   bvh.packets_};
   }
 
   template <bool kStats>

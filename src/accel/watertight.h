@@ -21,6 +21,10 @@
 #include "specula/math.h"
 #include "specula/ray.h"
 
+/// Forces the small per-ray and per-block helpers below inline into the traversal loops, which
+/// are large enough (packets included) that GCC's inlining budget would otherwise call them.
+#define SPECULA_ACCEL_INLINE inline __attribute__((always_inline))
+
 namespace specula::accel {
 
 /// Per-ray constants of the watertight test.
@@ -29,7 +33,7 @@ struct WatertightRay {
   float ox = 0, oy = 0, oz = 0;  ///< origin, permuted (org[kx], org[ky], org[kz])
   float sx = 0, sy = 0, sz = 0;  ///< shear (sx, sy) and scale (sz)
 
-  explicit WatertightRay(const Ray& ray) {
+  explicit SPECULA_ACCEL_INLINE WatertightRay(const Ray& ray) {
     const Vec3 a = abs(ray.dir);
     kz = (a.x >= a.y && a.x >= a.z) ? 0 : (a.y >= a.z ? 1 : 2);
     kx = kz == 2 ? 0 : kz + 1;
@@ -131,7 +135,7 @@ struct WatertightRay4 {
   int kx, ky, kz;
   __m128 ox, oy, oz, sx, sy, sz;
 
-  explicit WatertightRay4(const WatertightRay& r)
+  explicit SPECULA_ACCEL_INLINE WatertightRay4(const WatertightRay& r)
       : kx(r.kx), ky(r.ky), kz(r.kz), ox(_mm_set1_ps(r.ox)), oy(_mm_set1_ps(r.oy)), oz(_mm_set1_ps(r.oz)),
         sx(_mm_set1_ps(r.sx)), sy(_mm_set1_ps(r.sy)), sz(_mm_set1_ps(r.sz)) {}
 };
@@ -144,7 +148,7 @@ struct WatertightRay4 {
 /// the double-precision fallback) the function returns -1 and the caller must test the group
 /// with the scalar function. Otherwise returns the lane mask of hits in [tmin, tmax] with their
 /// t, u, v.
-inline int intersect_watertight4(const WatertightRay4& r, const float (&v)[3][3][4], __m128 tmin, __m128 tmax,
+SPECULA_ACCEL_INLINE int intersect_watertight4(const WatertightRay4& r, const float (&v)[3][3][4], __m128 tmin, __m128 tmax,
                                  __m128& t_out, __m128& u_out, __m128& v_out) {
   const __m128 az = _mm_sub_ps(_mm_load_ps(v[0][r.kz]), r.oz), bz = _mm_sub_ps(_mm_load_ps(v[1][r.kz]), r.oz),
                cz = _mm_sub_ps(_mm_load_ps(v[2][r.kz]), r.oz);
@@ -205,7 +209,7 @@ inline void lane_vertices(const BvhTriangle4& blk, int lane, float (&v)[9]) {
 /// The scalar fallback (edge functions exactly zero) reads the lane's own vertices; there
 /// rule_of(index) gives the EdgeRule of that triangle.
 template <class RuleOf, class OnHit>
-inline bool test_block(const WatertightRay& wr, const WatertightRay4& wr4, const BvhTriangle4& blk, float tmin,
+SPECULA_ACCEL_INLINE bool test_block(const WatertightRay& wr, const WatertightRay4& wr4, const BvhTriangle4& blk, float tmin,
                        const float& tmax, RuleOf&& rule_of, OnHit&& on_hit) {
   __m128 t4, u4, v4;
   const int mask = intersect_watertight4(wr4, blk.v, _mm_set1_ps(tmin), _mm_set1_ps(tmax), t4, u4, v4);

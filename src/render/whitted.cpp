@@ -426,17 +426,22 @@ void render_tile(const Context& ctx, const SkyEval& sky, Scratch& s, const Pinho
   s.accum.assign(npix, Vec3{});
   if (ctx.want_cost) s.cost.assign(npix, 0);
   s.current.clear();
-  for (int y = y0; y < y1; ++y)
-    for (int x = x0; x < x1; ++x) {
-      Segment seg;
-      seg.ray = camera.generate(static_cast<float>(x) + 0.5f, static_cast<float>(y) + 0.5f);
-      seg.weight = Vec3{1.0f};
-      seg.pixel = static_cast<uint32_t>((y - y0) * tw + (x - x0));
-      seg.reflect_depth = 0;
-      seg.refract_depth = 0;
-      seg.primary = true;
-      s.current.push_back(seg);
-    }
+  // Primary rays in 4x4 pixel blocks: every 16 consecutive rays of the wavefront are neighbours,
+  // which a tracer may trace as one packet (the BVH does), and so are the shadow rays their hits
+  // shoot. Each pixel's own segments keep their order, so the image is the same bit for bit.
+  for (int by = y0; by < y1; by += 4)
+    for (int bx = x0; bx < x1; bx += 4)
+      for (int y = by; y < std::min(by + 4, y1); ++y)
+        for (int x = bx; x < std::min(bx + 4, x1); ++x) {
+          Segment seg;
+          seg.ray = camera.generate(static_cast<float>(x) + 0.5f, static_cast<float>(y) + 0.5f);
+          seg.weight = Vec3{1.0f};
+          seg.pixel = static_cast<uint32_t>((y - y0) * tw + (x - x0));
+          seg.reflect_depth = 0;
+          seg.refract_depth = 0;
+          seg.primary = true;
+          s.current.push_back(seg);
+        }
   counters.primary += npix;
 
   while (!s.current.empty()) {
