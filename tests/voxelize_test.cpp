@@ -156,9 +156,9 @@ TEST(VoxelizeExact, InexactStrategiesAreSupersets) {
   }
 }
 
-TEST(VoxelizeExact, AllExactStrategiesAgreeOnSharedMeshes) {
-  if (test::shared_mesh_dir().empty())
-    GTEST_SKIP() << "shared meshes not found (set SPECULA_DATA or place ../shared/data/meshes beside the source tree)";
+/// Calls body(name, scene) for every shared mesh (loaded quietly); a missing mesh is a failure.
+template <class Body>
+void for_each_shared_mesh(Body&& body) {
   for (const char* name : test::kSharedMeshes) {
     const fs::path path = test::shared_mesh(name);
     if (path.empty()) {
@@ -167,7 +167,14 @@ TEST(VoxelizeExact, AllExactStrategiesAgreeOnSharedMeshes) {
     }
     LoadOptions lo;
     lo.warn = [](const std::string&) {};
-    const Scene scene = load_scene(path.string(), lo);
+    body(name, load_scene(path.string(), lo));
+  }
+}
+
+TEST(VoxelizeExact, AllExactStrategiesAgreeOnSharedMeshes) {
+  if (test::shared_mesh_dir().empty())
+    GTEST_SKIP() << "shared meshes not found (set SPECULA_DATA or place ../shared/data/meshes beside the source tree)";
+  for_each_shared_mesh([](const char* name, const Scene& scene) {
     const VoxelizeInput in{scene.positions, scene.indices, {}};
     for (int depth = 1; depth <= 8; ++depth) {
       VoxelizeOptions o;
@@ -186,7 +193,7 @@ TEST(VoxelizeExact, AllExactStrategiesAgreeOnSharedMeshes) {
         ASSERT_EQ(voxelize(in, o).codes, ref) << name << " depth " << depth << ": " << s.describe();
       }
     }
-  }
+  });
 }
 
 // The clip shortcut (a voxel whose clipped part lies inside it is accepted without tests) is a
@@ -195,15 +202,7 @@ TEST(VoxelizeExact, AllExactStrategiesAgreeOnSharedMeshes) {
 TEST(VoxelizeExact, ClipShortcutChangesNothingOnSharedMeshes) {
   if (test::shared_mesh_dir().empty())
     GTEST_SKIP() << "shared meshes not found (set SPECULA_DATA or place ../shared/data/meshes beside the source tree)";
-  for (const char* name : test::kSharedMeshes) {
-    const fs::path path = test::shared_mesh(name);
-    if (path.empty()) {
-      ADD_FAILURE() << "shared mesh " << name << " missing from " << test::shared_mesh_dir();
-      continue;
-    }
-    LoadOptions lo;
-    lo.warn = [](const std::string&) {};
-    const Scene scene = load_scene(path.string(), lo);
+  for_each_shared_mesh([](const char* name, const Scene& scene) {
     const VoxelizeInput in{scene.positions, scene.indices, {}};
     for (const int depth : {3, 6, 8}) {
       for (const VoxelStrategy& base : {VoxelStrategy{}, strategy(false, false, SatLevel::Leaf, false,
@@ -230,7 +229,7 @@ TEST(VoxelizeExact, ClipShortcutChangesNothingOnSharedMeshes) {
         EXPECT_EQ(without_stats.clip_accepts, 0u);
       }
     }
-  }
+  });
 }
 
 TEST(VoxelizeAttributes, AxisAlignedQuadNormalContoursAndAreaWeightedColours) {
