@@ -326,6 +326,7 @@ int voxelize(const VoxelizeCommandOptions& o) {
     }
   }
 
+  // NOLINTNEXTLINE(bugprone-use-after-move): build(VoxelSet&&) takes only the attributes; grid and codes stay
   const VoxelGrid& g = set.grid;
   std::fprintf(info, "scene     %s: %s triangles (loaded in %.2f ms)%s\n",
                l.scene.name.empty() ? o.scene.c_str() : l.scene.name.c_str(), with_thousands(st.triangles).c_str(),
