@@ -12,10 +12,12 @@
 # folder (grown corpora, logs) and prints its path.
 #
 # Reproducible: every target runs as one process with libFuzzer's -seed=SPECULA_FUZZ_SEED
-# (default 1; 0 = a random seed, which the report prints), so the sequence of inputs it tries
-# depends only on the seed, the seed corpus and the code: a finding at execution K comes back in
-# any run that gets that far. SPECULA_FUZZ_RUNS=N also stops each target after N executions
-# (-runs=N), which makes the whole run, its coverage figures included, repeat exactly.
+# (default 1; 0 = a random seed, which the report prints), -reload=0 (no time-driven corpus
+# re-reads) and, where the kernel allows it, address-space randomisation off (setarch -R: heap
+# addresses feed libFuzzer's comparison tracing), so the sequence of inputs it tries depends only
+# on the seed, the seed corpus and the code: a finding at execution K comes back in any run that
+# gets that far. SPECULA_FUZZ_RUNS=N also stops each target after N executions (-runs=N), which
+# makes the whole run, its coverage figures included, repeat exactly.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 root=$PWD
@@ -69,10 +71,15 @@ dict_of() {
   esac
 }
 
+# Address-space randomisation off for the fuzzers, when the kernel lets us (see the top).
+norand=()
+setarch -R true 2>/dev/null && norand=(setarch -R)
+
 failed=()
 found=0
-printf '\nfuzz: %s s%s per target, seed %s: %s\n' "$secs" "${runs:+ or $runs executions}" \
-  "$([ "$seed" = 0 ] && echo "random (SPECULA_FUZZ_SEED=0)" || echo "$seed")" "${targets[*]}"
+printf '\nfuzz: %s s%s per target, seed %s%s: %s\n' "$secs" "${runs:+ or $runs executions}" \
+  "$([ "$seed" = 0 ] && echo "random (SPECULA_FUZZ_SEED=0)" || echo "$seed")" \
+  "$( ((${#norand[@]})) && echo ", ASLR off" || echo ", ASLR on (setarch -R refused: runs may drift)")" "${targets[*]}"
 for t in "${targets[@]}"; do
   [ -x "$bin/$t" ] || { echo "fuzz: no such target '$t' (see $bin/targets.txt)" >&2; exit 2; }
   work=$scratch/$t
@@ -80,15 +87,15 @@ for t in "${targets[@]}"; do
   cp -r "fuzz/corpus/$t/." "$work/corpus/"
   [ "$t" = fuzz_obj ] && obj_extracts "$work/corpus"
   seeds=$(find "$work/corpus" -type f | wc -l)
-  args=("$work/corpus" -seed="$seed" -max_total_time="$secs" -timeout=10 -rss_limit_mb=2048 -max_len=65536
-        -artifact_prefix="$work/artifacts/" -print_final_stats=1)
+  args=("$work/corpus" -seed="$seed" -reload=0 -max_total_time="$secs" -timeout=10 -rss_limit_mb=2048
+        -max_len=65536 -artifact_prefix="$work/artifacts/" -print_final_stats=1)
   [ -n "$runs" ] && args+=(-runs="$runs")
   dict=$(dict_of "$t")
   [ -f "$dict" ] && args+=(-dict="$dict")
   rc=0
   # The target's private file folder goes under TMPDIR: libFuzzer leaves with _Exit, which skips
   # the target's clean-up, so it is put in the scratch folder that is removed here.
-  TMPDIR="$work/tmp" "$bin/$t" "${args[@]}" > "$work/log" 2>&1 || rc=$?
+  TMPDIR="$work/tmp" "${norand[@]}" "$bin/$t" "${args[@]}" > "$work/log" 2>&1 || rc=$?
   # Report: libFuzzer's last status line and its final statistics.
   execs=$(sed -n 's/^stat::number_of_executed_units: *//p' "$work/log" | tail -1)
   speed=$(sed -n 's/^stat::average_exec_per_sec: *//p' "$work/log" | tail -1)

@@ -319,7 +319,7 @@ TEST_F(Cli, MaxElementsFlag) {
       << low.err;
   EXPECT_EQ(run_cli("info '" + obj.string() + "' --max-elements 6", dir_).exit_code, 0);
   EXPECT_EQ(run_cli("info '" + obj.string() + "' --max-elements 4294967280", dir_).exit_code, 0);
-  for (const char* bad : {"0", "-1", "1e9", "4294967281", "99999999999999999999999", "lots"}) {
+  for (const char* bad : {"0", "-1", "1e9", "4294967281", "99999999999999999999", "99999999999999999999999", "lots"}) {
     const RunResult r = run_cli("info '" + obj.string() + "' --max-elements " + bad, dir_);
     EXPECT_EQ(r.exit_code, 2) << bad;
     EXPECT_NE(r.err.find("--max-elements"), std::string::npos) << r.err;

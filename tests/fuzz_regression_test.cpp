@@ -287,6 +287,33 @@ TEST(FuzzFindings, PngWithEmptyIdatLoads) {
   EXPECT_EQ(px[1], (specula::Vec3{0.0f, 0.0f, 1.0f}));
 }
 
+// fuzz_sky_image, out of memory: a 142-byte PNG whose second IDAT chunk claims 1.7 GB made
+// stb_image grow its IDAT buffer to 2 GiB before reading. Every chunk length is checked against
+// the bytes left first; a valid PNG with data after IEND still loads.
+TEST(FuzzFindings, PngChunkLongerThanTheFileIsRefusedBeforeAllocating) {
+  const fs::path dir = findings_dir();
+  fs::copy_file(fs::path(SPECULA_TEST_DATA_DIR) / "fuzz-regressions" / "fuzz_sky_image" /
+                    "oom-16ae1b3d-png-idat-length-beyond-file",
+                dir / "bomb.png");
+  int w = 0, h = 0;
+  try {
+    (void)specula::read_image((dir / "bomb.png").string(), w, h);
+    ADD_FAILURE() << "PNG loaded";
+  } catch (const specula::Error& e) {
+    EXPECT_NE(std::string(e.what()).find("bomb.png: cannot read PNG: byte 63: chunk 'IDAT' claims 1700986898 bytes, "
+                                         "the file has 67 left (truncated or corrupt)"),
+              std::string::npos)
+        << e.what();
+  }
+  const fs::path ok = fs::path(SPECULA_SOURCE_DIR) / "fuzz" / "corpus" / "fuzz_sky_image" / "empty_idat_2x1.png";
+  std::ifstream in(ok, std::ios::binary);
+  std::string png((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
+  png += "trailing bytes after IEND \xff\xff\xff\xff";
+  std::ofstream(dir / "trailing.png", std::ios::binary) << png;
+  EXPECT_EQ(specula::read_image((dir / "trailing.png").string(), w, h).size(), 2u);
+  fs::remove_all(dir);
+}
+
 // fuzz_sky_image, out of memory: a 570-byte tiled EXR claiming huge tiles made tinyexr allocate
 // 3 GB. The decoding memory is estimated from the header first and refused over the budget.
 TEST(FuzzFindings, ExrClaimingHugeTilesIsRefusedBeforeAllocating) {

@@ -84,7 +84,8 @@ void add_limit_options(CLI::App* app, LoadOptions& load) {
   app->add_option_function<std::string>(
          "--max-elements",
          [&load](const std::string& text) {
-           const bool digits = !text.empty() && text.size() <= 20 &&
+           // At most 19 digits, so std::stoull cannot throw; the range is checked below.
+           const bool digits = !text.empty() && text.size() <= 19 &&
                                std::all_of(text.begin(), text.end(), [](char c) { return c >= '0' && c <= '9'; });
            const unsigned long long v = digits ? std::stoull(text) : 0;
            if (!digits || v == 0 || v > kMaxElementsCeiling)

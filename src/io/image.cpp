@@ -299,22 +299,41 @@ std::vector<Vec3> decode_radiance(const std::string& path, const InputLimits& li
   return out;
 }
 
-/// stb_image 2.27 copies a zero-length first IDAT chunk with memcpy from a null buffer (undefined
-/// behaviour, found by fuzz_sky_image; empty IDAT chunks are legal PNG). They carry no image
-/// data, so they are removed before stb_image sees the file. From the first malformed chunk on,
-/// the bytes are kept as they are, for stb_image to refuse.
-void drop_empty_png_idat(std::string& data) {
+/// \p bytes with anything outside printable ASCII shown as '?' (chunk types in messages).
+std::string printable(std::string bytes) {
+  for (char& c : bytes)
+    if (c < 0x20 || c > 0x7e) c = '?';
+  return bytes;
+}
+
+/// Walks a PNG's chunks, up to IEND, before stb_image 2.27 sees them:
+/// * a chunk whose length field claims more bytes than the file has left is refused: stb_image
+///   grows its IDAT buffer to the claimed length (rounded up to a power of two) before it
+///   reads, so a 142-byte PNG claiming a 1.7 GB IDAT made it allocate 2 GiB (found by
+///   fuzz_sky_image);
+/// * zero-length IDAT chunks are removed: stb_image copies a zero-length first IDAT with memcpy
+///   from a null buffer (undefined behaviour, found by fuzz_sky_image; they are legal PNG and
+///   carry no image data).
+/// Other files are left alone; bytes after IEND are kept as they are (stb_image ignores them).
+void check_png_chunks(const std::string& path, std::string& data) {
   static const char kSignature[8] = {'\x89', 'P', 'N', 'G', '\r', '\n', '\x1a', '\n'};
   if (data.size() < 8 || std::memcmp(data.data(), kSignature, 8) != 0) return;
   std::string out = data.substr(0, 8);
   size_t at = 8;
-  while (data.size() - at >= 12) {
+  while (at < data.size()) {
+    if (data.size() - at < 12)
+      throw file_error(path, "cannot read PNG: byte " + std::to_string(at) + ": truncated chunk header");
     uint32_t len = 0;
     for (size_t i = 0; i < 4; ++i) len = len << 8 | static_cast<uint8_t>(data[at + i]);
-    if (len > data.size() - at - 12) break;  // malformed from here: left for stb_image to refuse
+    const std::string type = data.substr(at + 4, 4);
+    if (len > data.size() - at - 12)
+      throw file_error(path, "cannot read PNG: byte " + std::to_string(at) + ": chunk '" + printable(type) +
+                                 "' claims " + std::to_string(len) + " bytes, the file has " +
+                                 std::to_string(data.size() - at - 12) + " left (truncated or corrupt)");
     const size_t chunk = 12 + static_cast<size_t>(len);
-    if (!(len == 0 && data.compare(at + 4, 4, "IDAT") == 0)) out.append(data, at, chunk);
+    if (!(len == 0 && type == "IDAT")) out.append(data, at, chunk);
     at += chunk;
+    if (type == "IEND") break;
   }
   out.append(data, at, std::string::npos);
   data.swap(out);
@@ -528,7 +547,7 @@ std::vector<Vec3> read_image(const std::string& path, int& width, int& height, c
   if (ext == ".exr") return read_exr(path, limits, width, height);
   std::string bytes = read_image_file<std::string>(path, limits, (uintmax_t{1} << 31) - 1, "stb_image");
   if (is_radiance(bytes)) return decode_radiance(path, limits, bytes, width, height);  // already linear
-  drop_empty_png_idat(bytes);
+  check_png_chunks(path, bytes);
   int channels = 0;
   if (stbi_info_from_memory(reinterpret_cast<const stbi_uc*>(bytes.data()), static_cast<int>(bytes.size()), &width, &height,
                             &channels) &&
