@@ -8,7 +8,9 @@
 #include <cstdio>
 #include <functional>
 #include <memory>
+#include <optional>
 #include <string>
+#include <utility>
 #include <vector>
 
 #include <tbb/blocked_range.h>
@@ -173,48 +175,52 @@ std::vector<RaySet> make_ray_sets(const Scene& scene, const Tracer& tracer, int 
 }
 
 
-/// Median milliseconds of \p repeat calls of \p fn (after one warm-up call).
-double time_ms(int repeat, const std::function<void()>& fn) {
-  fn();
-  std::vector<double> ms;
-  for (int i = 0; i < std::max(1, repeat); ++i) {
-    const Timer t;
-    fn();
-    ms.push_back(t.ms());
-  }
-  return median(ms);
-}
-
-/// Traces \p set through \p tracer on \p threads threads (1 = the calling thread only) and
-/// returns the median Mrays/s.
-double trace_mrays(const Tracer& tracer, const RaySet& set, int threads, int repeat) {
-  if (set.rays.empty()) return 0.0;
+/// Traces \p set through \p ours and (when non-null) \p theirs on \p threads threads (1 = the
+/// calling thread only) and returns the median Mrays/s of each: one warm-up pass each, then
+/// \p repeat passes alternating between the two, so that a change in the machine's load (it is
+/// shared) weighs on both alike and their ratio stays fair.
+std::pair<double, double> trace_mrays(const Tracer& ours, const Tracer* theirs, const RaySet& set, int threads,
+                                      int repeat) {
+  if (set.rays.empty()) return {0.0, 0.0};
   std::vector<Hit> hits(set.rays.size());
   std::vector<Vec3> trans(set.rays.size());
   const std::span<const Ray> rays(set.rays);
-  const auto chunk = [&](size_t begin, size_t end) {
+  const auto chunk = [&](const Tracer& tracer, size_t begin, size_t end) {
     if (set.shadow)
       tracer.transmittance(rays.subspan(begin, end - begin), std::span<Vec3>(trans).subspan(begin, end - begin));
     else
       tracer.intersect(rays.subspan(begin, end - begin), std::span<Hit>(hits).subspan(begin, end - begin));
   };
-  double ms = 0.0;
-  if (threads <= 1) {
-    ms = time_ms(repeat, [&] { chunk(0, rays.size()); });
-  } else {
-    // Work items of 1024 rays (64 packets of 16: every thread's spans start on a packet).
-    constexpr size_t kChunk = 1024;
-    const size_t chunks = (rays.size() + kChunk - 1) / kChunk;
-    tbb::task_arena arena(threads);
-    ms = time_ms(repeat, [&] {
-      arena.execute([&] {
+  std::optional<tbb::task_arena> arena;
+  if (threads > 1) arena.emplace(threads);
+  const auto pass_ms = [&](const Tracer& tracer) {
+    const Timer t;
+    if (!arena) {
+      chunk(tracer, 0, rays.size());
+    } else {
+      // Work items of 1024 rays (64 packets of 16: every thread's spans start on a packet).
+      constexpr size_t kChunk = 1024;
+      const size_t chunks = (rays.size() + kChunk - 1) / kChunk;
+      arena->execute([&] {
         tbb::parallel_for(tbb::blocked_range<size_t>(0, chunks, 1), [&](const tbb::blocked_range<size_t>& r) {
-          chunk(r.begin() * kChunk, std::min(rays.size(), r.end() * kChunk));
+          chunk(tracer, r.begin() * kChunk, std::min(rays.size(), r.end() * kChunk));
         });
       });
-    });
+    }
+    return t.ms();
+  };
+  pass_ms(ours);
+  if (theirs) pass_ms(*theirs);
+  std::vector<double> a, b;
+  for (int i = 0; i < std::max(1, repeat); ++i) {
+    a.push_back(pass_ms(ours));
+    if (theirs) b.push_back(pass_ms(*theirs));
   }
-  return ms > 0.0 ? static_cast<double>(rays.size()) / (ms * 1000.0) : 0.0;
+  const auto mrays = [&](const std::vector<double>& ms) {
+    const double m = ms.empty() ? 0.0 : median(ms);
+    return m > 0.0 ? static_cast<double>(rays.size()) / (m * 1000.0) : 0.0;
+  };
+  return {mrays(a), mrays(b)};
 }
 
 std::string fmt(const char* f, double v) {
@@ -339,16 +345,14 @@ int bench_trace(const BenchTraceOptions& options) {
   }
 #endif
   rows.push_back({"build", scene.triangle_count(), "ms", median(b1), median(bn), em1, emn, true});
-  for (const RaySet& set : sets) {
-    const double s1 = trace_mrays(*bvh, set, 1, repeat);
-    const double sn = trace_mrays(*bvh, set, threads, repeat);
-    double x1 = 0, xn = 0;
+  const Tracer* e1t = nullptr;
+  const Tracer* ent = nullptr;
 #ifdef SPECULA_HAVE_EMBREE
-    if (with_embree) {
-      x1 = trace_mrays(*embree1, set, 1, repeat);
-      xn = trace_mrays(*embreen, set, threads, repeat);
-    }
+  if (with_embree) e1t = embree1.get(), ent = embreen.get();
 #endif
+  for (const RaySet& set : sets) {
+    const auto [s1, x1] = trace_mrays(*bvh, e1t, set, 1, repeat);
+    const auto [sn, xn] = trace_mrays(*bvh, ent, set, threads, repeat);
     rows.push_back({set.name, set.rays.size(), "Mrays/s", s1, sn, x1, xn, false});
   }
   // Packets: ours against rtcIntersect16 / rtcOccluded16 on the same block-ordered rays, with
@@ -356,16 +360,15 @@ int bench_trace(const BenchTraceOptions& options) {
   std::vector<Row> packet_rows;
   std::vector<double> packet_share;
   for (const RaySet& set : packet_sets) {
-    const double s1 = trace_mrays(*bvh_packets, set, 1, repeat);
-    const double sn = trace_mrays(*bvh_packets, set, threads, repeat);
-    double x1 = 0, xn = 0;
 #ifdef SPECULA_HAVE_EMBREE
-    if (with_embree) {
+    if (with_embree)
       for (Tracer* e : {embree1.get(), embreen.get()}) static_cast<EmbreeTracer*>(e)->use_packets(true);
-      x1 = trace_mrays(*embree1, set, 1, repeat);
-      xn = trace_mrays(*embreen, set, threads, repeat);
+#endif
+    const auto [s1, x1] = trace_mrays(*bvh_packets, e1t, set, 1, repeat);
+    const auto [sn, xn] = trace_mrays(*bvh_packets, ent, set, threads, repeat);
+#ifdef SPECULA_HAVE_EMBREE
+    if (with_embree)
       for (Tracer* e : {embree1.get(), embreen.get()}) static_cast<EmbreeTracer*>(e)->use_packets(false);
-    }
 #endif
     packet_rows.push_back({set.name, set.rays.size(), "Mrays/s", s1, sn, x1, xn, false});
     TraceStats st;
