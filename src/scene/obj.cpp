@@ -26,6 +26,7 @@
 #include <cmath>
 #include <cctype>
 #include <fstream>
+#include <iterator>
 #include <limits>
 #include <map>
 #include <sstream>
@@ -45,6 +46,44 @@ namespace fs = std::filesystem;
 
 namespace specula {
 namespace {
+
+/// The first number of \p text whose exponent has 10 or more significant digits ("2e-2147483648"),
+/// with its 1-based line in \p line, or "" when there is none. tinyobjloader overflows a signed
+/// int while it reads such an exponent (undefined behaviour, found by fuzz_obj) in OBJ and MTL
+/// files alike; no real file needs one (10^±1e9 is zero or infinite in any float format).
+std::string overlong_exponent(const std::string& text, size_t& line) {
+  auto digit = [](char c) { return c >= '0' && c <= '9'; };
+  auto blank = [](char c) { return c == ' ' || c == '\t' || c == '\n' || c == '\r'; };
+  for (size_t k = 1; k + 1 < text.size(); ++k) {
+    if (text[k] != 'e' && text[k] != 'E') continue;
+    // A mantissa before: [+-]? digits and at most one '.', from the start of a token.
+    size_t b = k, digits = 0, dots = 0;
+    while (b > 0 && (digit(text[b - 1]) || text[b - 1] == '.')) digits += digit(text[--b]), dots += text[b] == '.';
+    if (digits == 0 || dots > 1) continue;
+    if (b > 0 && (text[b - 1] == '+' || text[b - 1] == '-')) --b;
+    if (b > 0 && !blank(text[b - 1])) continue;
+    size_t j = k + 1;
+    if (j < text.size() && (text[j] == '+' || text[j] == '-')) ++j;
+    while (j < text.size() && text[j] == '0') ++j;
+    size_t e = j;
+    while (e < text.size() && digit(text[e])) ++e;
+    if (e - j < 10) continue;
+    line = 1 + static_cast<size_t>(std::count(text.begin(), text.begin() + static_cast<std::ptrdiff_t>(k), '\n'));
+    size_t end = e;
+    while (end < text.size() && !blank(text[end]) && end - b < 40) ++end;
+    return text.substr(b, end - b);
+  }
+  return "";
+}
+
+/// Refusal text for overlong_exponent()'s finding, or "".
+std::string exponent_refusal(const std::string& text) {
+  size_t line = 0;
+  const std::string number = overlong_exponent(text, line);
+  if (number.empty()) return "";
+  return "line " + std::to_string(line) + ": number '" + number +
+         "' has an exponent of 10 or more digits (out of range for any float)";
+}
 
 /// Reads mtllib files only from the OBJ's folder; records a refusal so the loader can throw.
 class ConfinedMaterialReader : public tinyobj::MaterialReader {
@@ -69,11 +108,17 @@ class ConfinedMaterialReader : public tinyobj::MaterialReader {
       if (refusal.empty()) refusal = "mtllib '" + mat_id + "': " + file_size_refusal(size, limits_);
       return false;
     }
-    std::ifstream in(p, std::ios::binary);
-    if (!in) {
+    std::ifstream file(p, std::ios::binary);
+    if (!file) {
       if (warn) *warn += "cannot open material library '" + mat_id + "'\n";
       return false;
     }
+    std::string text{std::istreambuf_iterator<char>(file), std::istreambuf_iterator<char>()};
+    if (const std::string bad = exponent_refusal(text); !bad.empty()) {
+      if (refusal.empty()) refusal = "mtllib '" + mat_id + "': " + bad;
+      return false;
+    }
+    std::istringstream in(std::move(text));
     tinyobj::LoadMtl(mat_map, materials, &in, warn, err);
     return true;
   }
@@ -206,6 +251,7 @@ Scene load_obj(const fs::path& path, const LoadOptions& options) {
   const std::string file = path.string();
   std::string text = detail::read_file(path, options.limits);
   size_t vertex_lines = 0;
+  if (const std::string why = exponent_refusal(text); !why.empty()) throw file_error(file, why);
   const std::vector<size_t> non_finite = non_finite_vertices(text, vertex_lines);
   // Before tinyobjloader allocates them: every "v" line becomes a vertex.
   detail::check_elements(options.limits, file, "", vertex_lines, detail::Elements::Vertices);
