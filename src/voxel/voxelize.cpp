@@ -783,9 +783,23 @@ void process_brick(const Context& cx, uint64_t brick, const BinEntry* first, con
     const double fd = static_cast<double>(static_cast<__int128>(sg) * t.d) / (nw * static_cast<double>(S));
     const double fpos = (fu > 0 ? fu : 0) + (fv > 0 ? fv : 0), fneg = (fu < 0 ? fu : 0) + (fv < 0 ? fv : 0);
     const double wlo = static_cast<double>(r0[w]) - 2.0, whi = static_cast<double>(r1[w]) + 2.0;
+    // With the SAT at the leaves, a column whose square the triangle's projection along w
+    // misses is skipped whole: that projection's three edge axes are SAT axes, so every voxel
+    // of the column would fail edge_overlap() (same integers, same critical corners).
+    const bool column_test = cx.tests.sat_leaf;
+    const int64_t(*en)[2] = t.en[w];
+    const int64_t* ec = t.ec[w];
+    int64_t ecs[3];
+    for (int i = 0; i < 3; ++i) ecs[i] = ec[i] + t.ecrit[w][i] * S;
     uint32_t q[3];
     for (uint32_t cv = r0[v]; cv <= r1[v]; ++cv)
       for (uint32_t cu = r0[u]; cu <= r1[u]; ++cu) {
+        if (column_test) {
+          const int64_t pu = static_cast<int64_t>(cu) << F, pv = static_cast<int64_t>(cv) << F;
+          if (en[0][0] * pu + en[0][1] * pv + ecs[0] < 0 || en[1][0] * pu + en[1][1] * pv + ecs[1] < 0 ||
+              en[2][0] * pu + en[2][1] * pv + ecs[2] < 0)
+            continue;
+        }
         const double a = fu * cu + fv * cv;
         // kmin = ceil(x) - 1 and kmax = floor(y), clamped to the range first (so the integer
         // conversions below stay in range; truncation then rounds toward zero).
