@@ -12,11 +12,13 @@
 #include <iterator>
 #include <vector>
 
+#include <stb_image_write.h>
 #include <tinyexr.h>
 
 #include "specula/accel.h"
 #include "specula/error.h"
 #include "specula/image.h"
+#include "io/image_util.h"
 #include "specula/render.h"
 #include "test_util.h"
 
@@ -164,6 +166,49 @@ TEST(Image, ReadImageRejectsGarbage) {
   EXPECT_THROW(read_image((dir / "junk.png").string(), w, h), Error);
   EXPECT_THROW(read_image((dir / "junk.exr").string(), w, h), Error);
   EXPECT_THROW(read_image((dir / "missing.png").string(), w, h), Error);
+}
+
+TEST(Image, JpegLoadsAndTruncatedOrOtherStbFormatsAreRefused) {
+  const auto dir = test::temp_dir("jpeg");
+  // A 16x8 JPEG of one colour, written by stb_image_write.
+  std::vector<unsigned char> rgb(16 * 8 * 3);
+  for (size_t i = 0; i < rgb.size(); i += 3) rgb[i] = 200, rgb[i + 1] = 100, rgb[i + 2] = 50;
+  std::string jpg;
+  ASSERT_NE(stbi_write_jpg_to_func(
+                [](void* ctx, void* data, int size) { static_cast<std::string*>(ctx)->append(static_cast<char*>(data), size); },
+                &jpg, 16, 8, 3, rgb.data(), 95),
+            0);
+  auto put = [&](const std::string& name, const std::string& bytes) {
+    std::ofstream(dir / name, std::ios::binary) << bytes;
+    return (dir / name).string();
+  };
+  int w = 0, h = 0;
+  const std::vector<Vec3> px = read_image(put("ok.jpg", jpg), w, h);
+  EXPECT_EQ(w, 16);
+  EXPECT_EQ(h, 8);
+  ASSERT_EQ(px.size(), 128u);
+  EXPECT_NEAR(px[0].x, srgb_to_linear(200.0f / 255.0f), 0.02f);
+  EXPECT_NEAR(px[0].z, srgb_to_linear(50.0f / 255.0f), 0.02f);
+  // Cut short (no end-of-image marker): stb_image would decode zeros past the end.
+  const std::string cut = test::error_of([&] { read_image(put("cut.jpg", jpg.substr(0, jpg.size() - 20)), w, h); });
+  EXPECT_NE(cut.find("cut.jpg"), std::string::npos) << cut;
+  EXPECT_NE(cut.find("truncated"), std::string::npos) << cut;
+  // The same header declaring 60000x60000 pixels (SOF0 height and width fields).
+  std::string big = jpg;
+  const size_t sof = big.find("\xff\xc0");
+  ASSERT_NE(sof, std::string::npos);
+  big[sof + 5] = big[sof + 7] = '\xea';
+  big[sof + 6] = big[sof + 8] = '\x60';
+  const std::string huge = test::error_of([&] { read_image(put("huge.jpg", big), w, h); });
+  EXPECT_NE(huge.find("60000x60000 image needs at least"), std::string::npos) << huge;
+  // A TGA (no magic number; what fuzz_sky_image turned a 156-byte file into: 21504x2560
+  // pixels of zeros), a BMP: not handed to stb_image, whatever the extension says.
+  const std::string tga("\0\0\x0a\0\0\0\0\0\0\0\0\0\0\x54\0\x0a\x08\0", 18);
+  for (const char* name : {"sky.png", "sky.tga"}) {
+    const std::string m = test::error_of([&] { read_image(put(name, tga), w, h); });
+    EXPECT_NE(m.find("not a PNG, JPEG, Radiance (.hdr) or OpenEXR (.exr) file"), std::string::npos) << m;
+  }
+  EXPECT_THROW(read_image(put("sky.bmp", "BM" + std::string(60, '\0')), w, h), Error);
 }
 
 TEST(AtomicWrite, ReplacesAnExistingFileWhole) {

@@ -201,15 +201,6 @@ void expect_test_mesh(const Scene& s, const std::string& what) {
   EXPECT_NO_THROW(s.validate()) << what;
 }
 
-std::string error_of(const std::function<void()>& f) {
-  try {
-    f();
-  } catch (const Error& e) {
-    return e.what();
-  }
-  return "(no specula::Error thrown)";
-}
-
 }  // namespace
 
 TEST(LoadFormats, SameMeshInEveryFormatLoadsIdentically) {
@@ -349,13 +340,13 @@ TEST(ObjLoader, ExponentsOfTenOrMoreDigitsAreRefusedWithTheirLine) {
   write_text(d / "ok.obj", "v 0 0 0\nv 1e0 0 0\nv 0 1.0E-000000000001 +2.5e+2\nf 1 2 3\n");
   EXPECT_EQ(load_obj(d / "ok.obj", quiet()).triangle_count(), 1u);
   write_text(d / "bad.obj", "v 0 0 0\nv 1 0 0\nv 0 2e-2147483648 0\nf 1 2 3\n");
-  const std::string m = error_of([&] { load_obj(d / "bad.obj", quiet()); });
+  const std::string m = test::error_of([&] { load_obj(d / "bad.obj", quiet()); });
   EXPECT_NE(m.find("bad.obj"), std::string::npos) << m;
   EXPECT_NE(m.find("line 3"), std::string::npos) << m;
   EXPECT_NE(m.find("'2e-2147483648'"), std::string::npos) << m;
   write_text(d / "m.mtl", "newmtl red\nKd 1 0 .5e99999999999\n");
   write_text(d / "m.obj", "mtllib m.mtl\nv 0 0 0\nv 1 0 0\nv 0 1 0\nusemtl red\nf 1 2 3\n");
-  const std::string mtl = error_of([&] { load_obj(d / "m.obj", quiet()); });
+  const std::string mtl = test::error_of([&] { load_obj(d / "m.obj", quiet()); });
   EXPECT_NE(mtl.find("mtllib 'm.mtl': line 2"), std::string::npos) << mtl;
   fs::remove_all(d);
 }
@@ -386,7 +377,7 @@ TEST(PlyLoader, ErrorsNameElementAndIndex) {
   write_text(d / "e.ply", "ply\nformat ascii 1.0\nelement vertex 3\nproperty float x\nproperty float y\n"
                           "property float z\nelement face 2\nproperty list uchar int vertex_indices\nend_header\n"
                           "0 0 0\n1 0 0\n0 1 0\n3 0 1 2\n3 0 1 5\n");
-  const std::string msg = error_of([&] { load_ply(d / "e.ply", quiet()); });
+  const std::string msg = test::error_of([&] { load_ply(d / "e.ply", quiet()); });
   EXPECT_NE(msg.find("e.ply"), std::string::npos) << msg;
   EXPECT_NE(msg.find("element 'face' 1"), std::string::npos) << msg;
   EXPECT_NE(msg.find("vertex index 5"), std::string::npos) << msg;
@@ -573,11 +564,11 @@ TEST(JsonScene, BuiltinShapesTransformsMaterialsLightsCameraSky) {
 TEST(JsonScene, ErrorsNameTheKeyPathAndPosition) {
   const fs::path d = test::temp_dir("jsonerr");
   write_text(d / "t.json", R"({"meshes": [{"builtin": "box"}, {"builtin": "box", "transform": {"scale": "big"}}]})");
-  std::string msg = error_of([&] { load_json_scene(d / "t.json", quiet()); });
+  std::string msg = test::error_of([&] { load_json_scene(d / "t.json", quiet()); });
   EXPECT_NE(msg.find("t.json"), std::string::npos) << msg;
   EXPECT_NE(msg.find("meshes[1].transform.scale"), std::string::npos) << msg;
   write_text(d / "p.json", "{\n  \"meshes\": [\n    {\"builtin\": \"box\",}\n  ]\n}\n");
-  msg = error_of([&] { load_json_scene(d / "p.json", quiet()); });
+  msg = test::error_of([&] { load_json_scene(d / "p.json", quiet()); });
   EXPECT_NE(msg.find("p.json: line 3"), std::string::npos) << msg;
   EXPECT_NE(msg.find("byte"), std::string::npos) << msg;
   fs::remove_all(d);
@@ -588,12 +579,12 @@ TEST(LoadScene, DispatchesByCaseInsensitiveExtensionAndNamesTheFile) {
   write_text(d / "UP.OBJ", obj_text());
   EXPECT_EQ(load_scene((d / "UP.OBJ").string(), quiet()).triangle_count(), 4u);
   write_text(d / "x.stl", "solid x\n");
-  std::string msg = error_of([&] { load_scene((d / "x.stl").string(), quiet()); });
+  std::string msg = test::error_of([&] { load_scene((d / "x.stl").string(), quiet()); });
   EXPECT_NE(msg.find("x.stl"), std::string::npos) << msg;
-  msg = error_of([&] { load_scene((d / "missing.ply").string(), quiet()); });
+  msg = test::error_of([&] { load_scene((d / "missing.ply").string(), quiet()); });
   EXPECT_NE(msg.find("missing.ply"), std::string::npos) << msg;
   EXPECT_NE(msg.find("not found"), std::string::npos) << msg;
-  msg = error_of([&] { load_scene("no-such-builtin", quiet()); });
+  msg = test::error_of([&] { load_scene("no-such-builtin", quiet()); });
   EXPECT_NE(msg.find("no-such-builtin"), std::string::npos) << msg;
   fs::remove_all(d);
 }
@@ -644,7 +635,7 @@ TEST(JsonScene, DataMeshesAreFoundThroughDataPaths) {
   EXPECT_EQ(s.triangle_count(), 69451u);
   o.data.cli_dir = d.string();
   write_text(d / "m.json", R"({"meshes": [{"data": "no-such-mesh.obj"}]})");
-  const std::string msg = error_of([&] { load_scene((d / "m.json").string(), o); });
+  const std::string msg = test::error_of([&] { load_scene((d / "m.json").string(), o); });
   EXPECT_NE(msg.find("m.json"), std::string::npos) << msg;
   EXPECT_NE(msg.find("no-such-mesh.obj"), std::string::npos) << msg;
   EXPECT_NE(msg.find(d.string()), std::string::npos) << msg;  // names the search path

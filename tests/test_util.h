@@ -5,7 +5,10 @@
 
 #include <cstdlib>
 #include <filesystem>
+#include <functional>
 #include <string>
+
+#include "specula/error.h"
 
 namespace specula::test {
 
@@ -48,6 +51,16 @@ inline std::filesystem::path temp_dir(const std::string& tag) {
   std::filesystem::remove_all(d);
   std::filesystem::create_directories(d);
   return d;
+}
+
+/// The message of the specula::Error that \p f throws, or "(no specula::Error thrown)".
+inline std::string error_of(const std::function<void()>& f) {
+  try {
+    f();
+  } catch (const Error& e) {
+    return e.what();
+  }
+  return "(no specula::Error thrown)";
 }
 
 }  // namespace specula::test

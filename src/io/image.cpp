@@ -299,6 +299,26 @@ std::vector<Vec3> decode_radiance(const std::string& path, const InputLimits& li
   return out;
 }
 
+bool is_png(const std::string& data) { return data.compare(0, 8, "\x89PNG\r\n\x1a\n", 8) == 0; }
+bool is_jpeg(const std::string& data) { return data.compare(0, 3, "\xff\xd8\xff", 3) == 0; }
+
+/// JPEG before stb_image 2.27 decodes it: stb_image reads zeros past the end of a truncated
+/// file and returns a silently wrong image, so the file must end its first scan: an EOI marker
+/// (FF D9, which entropy-coded data cannot contain) after the first SOS (FF DA). And a file too
+/// small for the size it declares is refused: every 8x8 block of a component costs at least
+/// one bit (its DC code), so w x h pixels need w h / 512 bytes; a quarter of that is required.
+void check_jpeg(const std::string& path, const std::string& data, int width, int height) {
+  const size_t sos = data.find("\xff\xda", 2, 2);
+  const size_t eoi = data.rfind("\xff\xd9", std::string::npos, 2);
+  if (sos == std::string::npos || eoi == std::string::npos || eoi < sos)
+    throw file_error(path, "cannot read JPEG: no end-of-image marker after the image data (truncated)");
+  const uint64_t need = static_cast<uint64_t>(width) * static_cast<uint64_t>(height) / 2048;
+  if (data.size() < need)
+    throw file_error(path, "cannot read JPEG: a " + std::to_string(width) + "x" + std::to_string(height) +
+                               " image needs at least " + std::to_string(need) + " bytes, the file has " +
+                               std::to_string(data.size()) + " (truncated or corrupt)");
+}
+
 /// \p bytes with anything outside printable ASCII shown as '?' (chunk types in messages).
 std::string printable(std::string bytes) {
   for (char& c : bytes)
@@ -316,8 +336,7 @@ std::string printable(std::string bytes) {
 ///   carry no image data).
 /// Other files are left alone; bytes after IEND are kept as they are (stb_image ignores them).
 void check_png_chunks(const std::string& path, std::string& data) {
-  static const char kSignature[8] = {'\x89', 'P', 'N', 'G', '\r', '\n', '\x1a', '\n'};
-  if (data.size() < 8 || std::memcmp(data.data(), kSignature, 8) != 0) return;
+  if (!is_png(data)) return;
   std::string out = data.substr(0, 8);
   size_t at = 8;
   while (at < data.size()) {
@@ -547,13 +566,20 @@ std::vector<Vec3> read_image(const std::string& path, int& width, int& height, c
   if (ext == ".exr") return read_exr(path, limits, width, height);
   std::string bytes = read_image_file<std::string>(path, limits, (uintmax_t{1} << 31) - 1, "stb_image");
   if (is_radiance(bytes)) return decode_radiance(path, limits, bytes, width, height);  // already linear
-  check_png_chunks(path, bytes);
+  // stb_image also sniffs TGA (which has no magic number: any bytes can pass for one), BMP, PSD,
+  // GIF, PIC and PNM; only PNG and JPEG are handed to it.
+  const bool png = is_png(bytes), jpeg = is_jpeg(bytes);
+  if (!png && !jpeg)
+    throw file_error(path, "cannot read image: not a PNG, JPEG, Radiance (.hdr) or OpenEXR (.exr) file");
+  if (png) check_png_chunks(path, bytes);
   int channels = 0;
   if (stbi_info_from_memory(reinterpret_cast<const stbi_uc*>(bytes.data()), static_cast<int>(bytes.size()), &width, &height,
                             &channels) &&
-      width > 0 && height > 0)
+      width > 0 && height > 0) {
+    if (jpeg) check_jpeg(path, bytes, width, height);
     check_decode_budget(path, limits, static_cast<uint64_t>(width) * static_cast<uint64_t>(height) * (4 + sizeof(Vec3)),
                         std::to_string(width) + "x" + std::to_string(height) + " image");
+  }
   unsigned char* data = stbi_load_from_memory(reinterpret_cast<const stbi_uc*>(bytes.data()), static_cast<int>(bytes.size()),
                                               &width, &height, &channels, 3);
   if (!data) throw file_error(path, std::string("cannot read image: ") + stbi_failure_reason());
