@@ -243,9 +243,15 @@ Vec3 medium_attenuation(const Context& ctx, int id, float dist) {
   return out;
 }
 
+/// The per-pixel rotation of the sphere-light sample spiral. Opaque to the optimiser (noipa) so
+/// it is computed only for sphere lights, not hoisted out of the light loop for every hit.
+[[gnu::noipa]] float sample_rotation(uint32_t global_pixel) {
+  return 2.0f * kPi * to_unit_float(hash_u32(global_pixel * 0x9E3779B9u + 0x632BE5ABu));
+}
+
 /// Adds the direct lighting of every light at a surface point: straight to the pixel without
 /// shadow rays, else as shadow-ray requests carrying the radiance they would bring.
-void shade_lights(const Context& ctx, Scratch& s, uint32_t pixel, const Vec3& weight, const ShadeMaterial& m,
+[[gnu::always_inline]] inline void shade_lights(const Context& ctx, Scratch& s, uint32_t pixel, const Vec3& weight, const ShadeMaterial& m,
                   const Vec3& p, const Vec3& ng_f, const Vec3& ns_f, const Vec3& view_dir,
                   uint32_t global_pixel) {
   if (!m.lit) return;
@@ -304,7 +310,7 @@ void shade_lights(const Context& ctx, Scratch& s, uint32_t pixel, const Vec3& we
     const Vec3 axis = normalize(light.position - p);
     Vec3 t, b;
     orthonormal_basis(axis == Vec3{} ? Vec3{0, 1, 0} : axis, t, b);
-    const float rot = 2.0f * kPi * to_unit_float(hash_u32(global_pixel * 0x9E3779B9u + 0x632BE5ABu));
+    const float rot = sample_rotation(global_pixel);
     const size_t n = light.rr.size();
     for (size_t k = 0; k < n; ++k) {
       const float phi = light.phase[k] + rot;
@@ -354,10 +360,8 @@ Surface triangle_surface(const Context& ctx, const Hit& hit) {
 /// the normal the tracer reports (cube face or contour plane). \p storage holds the material.
 Surface voxel_surface(const Context& ctx, const Ray& ray, const Hit& hit, ShadeMaterial& storage) {
   const VoxelAttributes& a = ctx.voxels->attributes(hit.prim);
-  const size_t base = ctx.shade_index(a.material);
-  const float base_ior = base < ctx.scene.materials.size() ? ctx.scene.materials[base].ior : ctx.fallback.ior;
-  storage = ctx.shade[base];
-  finish_shade_material(storage, a.colour, a.reflectivity, a.transparency, a.transparency > 0.0f ? a.ior : base_ior,
+  storage = ctx.shade[ctx.shade_index(a.material)];  // its ior is still the material's own
+  finish_shade_material(storage, a.colour, a.reflectivity, a.transparency, a.transparency > 0.0f ? a.ior : storage.ior,
                         ctx.scene.ambient);
   Surface sf;
   sf.p = ray.org + ray.dir * hit.t;
