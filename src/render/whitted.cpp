@@ -104,21 +104,6 @@ struct PathState {
   MediumStack media;
 };
 
-struct Scratch {
-  std::vector<Ray> rays, next_rays;  ///< the wavefront being traced and the one being built
-  std::vector<PathState> paths, next_paths;
-  std::vector<Hit> hits;
-  std::vector<Ray> shadow_rays;
-  std::vector<Vec3> shadow_contrib, shadow_t;
-  std::vector<uint32_t> shadow_pixel;
-  std::vector<Vec3> accum;
-  std::vector<uint64_t> cost;
-  std::vector<uint32_t> skip;  ///< per ray: material of the voxel medium it is in (kNoHit: none)
-};
-
-
-float to_unit_float(uint32_t x) { return static_cast<float>(x >> 8) * (1.0f / 16777216.0f); }
-
 /// What shading needs of a material. Computed once per render for the scene's materials
 /// (triangle hits), and per hit for voxels, whose colour, reflectivity, transparency and ior are
 /// the voxel's own. The expressions are the ones evaluated per hit before this was hoisted, so
@@ -136,6 +121,22 @@ struct ShadeMaterial {
   bool has_spec = false;
   bool lit = false;  ///< whether a light can add anything (kd or the specular colour non-zero)
 };
+
+struct Scratch {
+  std::vector<Ray> rays, next_rays;  ///< the wavefront being traced and the one being built
+  std::vector<PathState> paths, next_paths;
+  std::vector<Hit> hits;
+  std::vector<Ray> shadow_rays;
+  std::vector<Vec3> shadow_contrib, shadow_t;
+  std::vector<uint32_t> shadow_pixel;
+  std::vector<Vec3> accum;
+  std::vector<uint64_t> cost;
+  std::vector<uint32_t> skip;  ///< per ray: material of the voxel medium it is in (kNoHit: none)
+  ShadeMaterial voxel_material;  ///< the material of the voxel hit being shaded
+};
+
+
+float to_unit_float(uint32_t x) { return static_cast<float>(x >> 8) * (1.0f / 16777216.0f); }
 
 /// The largest nh for which the Blinn-Phong power nh^e is certainly rounded to +0 by powf, so the
 /// call can be skipped without changing a bit: below 2^(-160 / e) the exact power is below
@@ -534,8 +535,7 @@ void render_tile(const Context& ctx, const SkyEval& sky, Scratch& s, const Pinho
         continue;
       }
       if (max_component(weight) <= 0.0f) continue;
-      ShadeMaterial voxel_material;  // filled only for voxel hits
-      const Surface sf = ctx.voxels ? voxel_surface(ctx, ray, hit, voxel_material) : triangle_surface(ctx, hit);
+      const Surface sf = ctx.voxels ? voxel_surface(ctx, ray, hit, s.voxel_material) : triangle_surface(ctx, hit);
       shade_hit(ctx, s, ray, seg, weight, sf);
       if (seg.primary && ctx.want_normal) {
         Vec3 nrm = sf.ns != Vec3{} ? sf.ns : sf.ng;
