@@ -5,6 +5,9 @@
 #include <cmath>
 #include <cstdint>
 #include <cstring>
+#if defined(__SSE2__)
+#include <emmintrin.h>
+#endif
 
 #include "specula/math.h"
 
@@ -61,6 +64,23 @@ inline Vec3 offset_ray_origin(const Vec3& p, const Vec3& n) {
   constexpr float kOrigin = 1.0f / 32.0f;
   constexpr float kFloatScale = 1.0f / 65536.0f;
   constexpr float kIntScale = 256.0f;
+#if defined(__SSE2__)
+  // The scalar formula below, three lanes at a time (the integrator calls this for every
+  // secondary and shadow ray): the same truncation, integer add and select per lane, so the
+  // result is the same bit for bit.
+  const __m128 pv = _mm_setr_ps(p.x, p.y, p.z, 0.0f), nv = _mm_setr_ps(n.x, n.y, n.z, 0.0f);
+  const __m128i of = _mm_cvttps_epi32(_mm_mul_ps(_mm_set1_ps(kIntScale), nv));
+  const __m128i neg = _mm_castps_si128(_mm_cmplt_ps(pv, _mm_setzero_ps()));
+  const __m128i step = _mm_sub_epi32(_mm_xor_si128(of, neg), neg);  // p < 0 ? -of : of
+  const __m128 pi = _mm_castsi128_ps(_mm_add_epi32(_mm_castps_si128(pv), step));
+  const __m128 abs_p = _mm_andnot_ps(_mm_set1_ps(-0.0f), pv);
+  const __m128 near_origin = _mm_cmplt_ps(abs_p, _mm_set1_ps(kOrigin));
+  const __m128 nudged = _mm_add_ps(pv, _mm_mul_ps(_mm_set1_ps(kFloatScale), nv));
+  const __m128 r = _mm_or_ps(_mm_and_ps(near_origin, nudged), _mm_andnot_ps(near_origin, pi));
+  alignas(16) float out[4];
+  _mm_store_ps(out, r);
+  return {out[0], out[1], out[2]};
+#else
   Vec3 out;
   for (int i = 0; i < 3; ++i) {
     const int32_t of = static_cast<int32_t>(kIntScale * n[i]);
@@ -72,6 +92,7 @@ inline Vec3 offset_ray_origin(const Vec3& p, const Vec3& n) {
     out[i] = std::fabs(p[i]) < kOrigin ? p[i] + kFloatScale * n[i] : pi;
   }
   return out;
+#endif
 }
 
 }  // namespace specula

@@ -92,19 +92,39 @@ struct MediumStack {
   }
 };
 
-struct Segment {
-  Ray ray;
+/// A path segment without its ray: the rays of a wavefront live in an array of their own, which
+/// is what the tracer takes, so a wavefront is traced without being copied.
+struct PathState {
   Vec3 weight;       ///< throughput from the camera to this segment
   uint32_t pixel;    ///< index inside the tile
+  uint32_t global;   ///< index in the film
   uint8_t reflect_depth;
   uint8_t refract_depth;
   bool primary;
   MediumStack media;
 };
 
+/// What shading needs of a material. Computed once per render for the scene's materials
+/// (triangle hits), and per hit for voxels, whose colour, reflectivity, transparency and ior are
+/// the voxel's own. The expressions are the ones evaluated per hit before this was hoisted, so
+/// every number is the same bit for bit.
+struct ShadeMaterial {
+  Vec3 kd;        ///< diffuse * local
+  Vec3 specular;
+  Vec3 emission;
+  Vec3 base;      ///< emission + ambient * diffuse * local: what every hit adds to its pixel
+  float phong_exponent = 0.0f;
+  /// powf(nh, phong_exponent) is exactly +0 for 0 < nh < spec_zero_below (0: no shortcut).
+  float spec_zero_below = 0.0f;
+  float refl = 0.0f, trans = 0.0f;  ///< mirror and dielectric weights, clamped and normalised
+  float ior = 1.0f;
+  bool has_spec = false;
+  bool lit = false;  ///< whether a light can add anything (kd or the specular colour non-zero)
+};
+
 struct Scratch {
-  std::vector<Segment> current, next;
-  std::vector<Ray> rays;
+  std::vector<Ray> rays, next_rays;  ///< the wavefront being traced and the one being built
+  std::vector<PathState> paths, next_paths;
   std::vector<Hit> hits;
   std::vector<Ray> shadow_rays;
   std::vector<Vec3> shadow_contrib, shadow_t;
@@ -112,10 +132,67 @@ struct Scratch {
   std::vector<Vec3> accum;
   std::vector<uint64_t> cost;
   std::vector<uint32_t> skip;  ///< per ray: material of the voxel medium it is in (kNoHit: none)
+  ShadeMaterial voxel_material;  ///< the material of the voxel hit being shaded
 };
 
 
 float to_unit_float(uint32_t x) { return static_cast<float>(x >> 8) * (1.0f / 16777216.0f); }
+
+/// The largest nh for which the Blinn-Phong power nh^e is certainly rounded to +0 by powf, so the
+/// call can be skipped without changing a bit: below 2^(-160 / e) the exact power is below
+/// 2^-160, far under half the smallest subnormal (2^-150); glibc's powf sees e * log2(nh) <= -150
+/// there and returns +0 from its underflow path. Checked against powf itself; 0 turns it off.
+float spec_zero_below(float e) {
+  if (!(e > 0.0f) || !std::isfinite(e)) return 0.0f;
+  const float t = std::exp2(-160.0f / e);
+  if (!(t > 0.0f) || !(t < 1.0f)) return 0.0f;
+  const float at = std::pow(t, e);
+  return (at == 0.0f && !std::signbit(at)) ? t : 0.0f;
+}
+
+/// Fills the per-hit part of \p sm (energy split, kd, base, ior) from a surface's diffuse colour,
+/// reflectivity, transparency and ior; \p sm already holds its material's specular, exponent and
+/// emission.
+void finish_shade_material(ShadeMaterial& sm, const Vec3& diffuse, float reflectivity, float transparency,
+                           float ior, const Vec3& ambient) {
+  float refl = std::clamp(reflectivity, 0.0f, 1.0f);
+  float trans = std::clamp(transparency, 0.0f, 1.0f);
+  if (refl + trans > 1.0f) {
+    const float k = 1.0f / (refl + trans);
+    refl *= k;
+    trans *= k;
+  }
+  const float local = std::max(0.0f, 1.0f - refl - trans);
+  sm.refl = refl;
+  sm.trans = trans;
+  sm.ior = ior;
+  sm.kd = diffuse * local;
+  sm.base = sm.emission + ambient * diffuse * local;
+  sm.lit = !(max_component(sm.kd) <= 0.0f && !sm.has_spec);
+}
+
+ShadeMaterial make_shade_material(const Material& m, const Vec3& ambient) {
+  ShadeMaterial sm;
+  sm.specular = m.specular;
+  sm.emission = m.emission;
+  sm.phong_exponent = m.phong_exponent;
+  sm.spec_zero_below = spec_zero_below(m.phong_exponent);
+  sm.has_spec = max_component(m.specular) > 0.0f;
+  finish_shade_material(sm, m.diffuse, m.reflectivity, m.transparency, m.ior, ambient);
+  return sm;
+}
+
+/// A light with what does not depend on the shading point computed once.
+struct LightSetup {
+  LightType type = LightType::Point;
+  bool point = false;  ///< a point light (one sample at position)
+  Vec3 power;          ///< color * intensity
+  Vec3 l;              ///< directional: unit direction towards the light
+  Vec3 position;
+  float radius = 0.0f;
+  float inv_n = 1.0f;
+  std::vector<float> rr, phase;  ///< sphere: per sample k, disc radius and k * golden angle
+};
 
 /// Everything constant during one render.
 struct Context {
@@ -130,6 +207,10 @@ struct Context {
   /// attributes), shaded with their averaged numbers over their largest triangle's material.
   const VoxelTracer* voxels = nullptr;
   bool shadows = true;  ///< false: light contributions are added without a shadow ray
+  bool vertex_normals = false;  ///< the scene has one normal per vertex
+  std::vector<ShadeMaterial> shade{};///< per scene material, then the fallback material
+  std::vector<uint8_t> absorbing{};  ///< per scene material: some absorption coefficient > 0
+  std::vector<LightSetup> lights{};  ///< lights that can contribute (power > 0)
 
   /// Whether a hit record refers to something this context can shade.
   bool valid(const Hit& hit) const {
@@ -137,13 +218,8 @@ struct Context {
     return voxels ? true : hit.prim < scene.triangle_count();
   }
 
-  const Material& material(uint32_t prim) const {
-    if (prim < scene.material_ids.size()) {
-      const uint32_t id = scene.material_ids[prim];
-      if (id < scene.materials.size()) return scene.materials[id];
-    }
-    return fallback;
-  }
+  /// Index into `shade` of material id \p id (the fallback for an invalid id).
+  size_t shade_index(uint32_t id) const { return id < scene.materials.size() ? id : scene.materials.size(); }
   uint32_t material_id(uint32_t prim) const {
     return prim < scene.material_ids.size() ? scene.material_ids[prim] : 0xFFFFFFFFu;
   }
@@ -152,6 +228,8 @@ struct Context {
                ? scene.materials[static_cast<size_t>(id)].ior
                : 1.0f;
   }
+  /// Whether medium \p id attenuates (Beer-Lambert with some coefficient > 0).
+  bool absorbs(int id) const { return id >= 0 && static_cast<size_t>(id) < absorbing.size() && absorbing[static_cast<size_t>(id)]; }
 };
 
 /// Beer-Lambert transmittance over \p dist inside medium \p id (1 outside any medium).
@@ -166,64 +244,65 @@ Vec3 medium_attenuation(const Context& ctx, int id, float dist) {
   return out;
 }
 
-/// Adds the direct lighting of every light at a surface point as shadow-ray requests.
-void shade_lights(const Context& ctx, Scratch& s, const Segment& seg, const Material& m,
-                  float local, const Vec3& p, const Vec3& ng_f, const Vec3& ns_f, const Vec3& view_dir,
-                  uint32_t global_pixel) {
-  const Vec3 kd = m.diffuse * local;
-  const bool has_spec = max_component(m.specular) > 0.0f;
-  if (max_component(kd) <= 0.0f && !has_spec) return;
-  const Vec3 org = offset_ray_origin(p, ng_f);
+/// The per-pixel rotation of the sphere-light sample spiral. Opaque to the optimiser (noipa) so
+/// it is computed only for sphere lights, not hoisted out of the light loop for every hit.
+[[gnu::noipa]] float sample_rotation(uint32_t global_pixel) {
+  return 2.0f * kPi * to_unit_float(hash_u32(global_pixel * 0x9E3779B9u + 0x632BE5ABu));
+}
 
-  auto add_sample = [&](const Vec3& l, const Vec3& irradiance, const Ray& shadow) {
-    // l: unit direction to the light; irradiance: light reaching p (before the cosine).
-    if (dot(l, ng_f) <= 0.0f) return;  // light behind the surface
-    const float cos_l = dot(ns_f, l);
-    if (cos_l <= 0.0f) return;
-    Vec3 f = kd * cos_l;
-    if (has_spec) {
-      const Vec3 h = normalize(l - view_dir);
-      const float nh = std::max(0.0f, dot(ns_f, h));
-      if (nh > 0.0f) f += m.specular * std::pow(nh, m.phong_exponent);
+/// Adds the direct lighting of every light at a surface point: straight to the pixel without
+/// shadow rays, else as shadow-ray requests carrying the radiance they would bring.
+[[gnu::always_inline]] inline void shade_lights(const Context& ctx, Scratch& s, uint32_t pixel, const Vec3& weight, const ShadeMaterial& m,
+                  const Vec3& p, const Vec3& ng_f, const Vec3& ns_f, const Vec3& view_dir,
+                  uint32_t global_pixel) {
+  if (!m.lit) return;
+  // The shadow rays' origin, computed on first use (never without shadow rays).
+  Vec3 org;
+  bool have_org = false;
+  const auto origin = [&]() -> const Vec3& {
+    if (!have_org) {
+      org = offset_ray_origin(p, ng_f);
+      have_org = true;
     }
-    const Vec3 c = seg.weight * f * irradiance;
-    if (max_component(c) <= 0.0f) return;
-    if (!ctx.shadows) {  // unoccluded: no shadow ray
-      s.accum[seg.pixel] += c;
-      return;
-    }
-    s.shadow_rays.push_back(shadow);
-    s.shadow_contrib.push_back(c);
-    s.shadow_pixel.push_back(seg.pixel);
+    return org;
   };
 
-  for (const Light& light : ctx.scene.lights) {
-    const Vec3 power = light.color * light.intensity;
-    if (max_component(power) <= 0.0f) continue;
+  // l: unit direction to the light; irradiance: light reaching p (before the cosine). Returns
+  // the contribution in c, false when there is none.
+  const auto sample = [&](const Vec3& l, const Vec3& irradiance, Vec3& c) {
+    if (dot(l, ng_f) <= 0.0f) return false;  // light behind the surface
+    const float cos_l = dot(ns_f, l);
+    if (cos_l <= 0.0f) return false;
+    Vec3 f = m.kd * cos_l;
+    if (m.has_spec) {
+      const Vec3 h = normalize(l - view_dir);
+      const float nh = std::max(0.0f, dot(ns_f, h));
+      if (nh > 0.0f) f += m.specular * (nh < m.spec_zero_below ? 0.0f : std::pow(nh, m.phong_exponent));
+    }
+    c = weight * f * irradiance;
+    return max_component(c) > 0.0f;
+  };
+  const auto add = [&](const Vec3& c, const Ray& shadow) {
+    s.shadow_rays.push_back(shadow);
+    s.shadow_contrib.push_back(c);
+    s.shadow_pixel.push_back(pixel);
+  };
+
+  for (const LightSetup& light : ctx.lights) {
+    Vec3 c;
     if (light.type == LightType::Directional) {
-      const Vec3 l = normalize(-light.direction);
-      if (l == Vec3{}) continue;
-      Ray r;
-      r.org = org;
-      r.dir = l;
-      r.tmin = 0.0f;
-      r.tmax = kInf;
-      add_sample(l, power, r);
+      if (!sample(light.l, light.power, c)) continue;
+      if (ctx.shadows) add(c, Ray{origin(), 0.0f, light.l, kInf});
+      else s.accum[pixel] += c;
       continue;
     }
-    const int n = (light.type == LightType::Sphere && light.radius > 0.0f)
-                      ? std::clamp(light.samples, 1, 256)
-                      : 1;
-    if (n == 1 && light.type != LightType::Sphere) {
+    if (light.point) {
       const Vec3 to = light.position - p;
       const float d2 = dot(to, to);
       if (!(d2 > 0.0f)) continue;
-      Ray r;
-      r.org = org;
-      r.dir = light.position - org;
-      r.tmin = 0.0f;
-      r.tmax = 1.0f;
-      add_sample(to * (1.0f / std::sqrt(d2)), power / d2, r);
+      if (!sample(to * (1.0f / std::sqrt(d2)), light.power / d2, c)) continue;
+      if (ctx.shadows) add(c, Ray{origin(), 0.0f, light.position - origin(), 1.0f});
+      else s.accum[pixel] += c;
       continue;
     }
     // Sphere light: n points of a Vogel (golden-angle Fibonacci) spiral on the disc the
@@ -232,34 +311,27 @@ void shade_lights(const Context& ctx, Scratch& s, const Segment& seg, const Mate
     const Vec3 axis = normalize(light.position - p);
     Vec3 t, b;
     orthonormal_basis(axis == Vec3{} ? Vec3{0, 1, 0} : axis, t, b);
-    const float rot = 2.0f * kPi * to_unit_float(hash_u32(global_pixel * 0x9E3779B9u + 0x632BE5ABu));
-    const float golden = kPi * (3.0f - std::sqrt(5.0f));
-    const float inv_n = 1.0f / static_cast<float>(n);
-    for (int k = 0; k < n; ++k) {
-      const float rr = light.radius * std::sqrt((static_cast<float>(k) + 0.5f) * inv_n);
-      const float phi = static_cast<float>(k) * golden + rot;
-      const Vec3 q = light.position + (t * std::cos(phi) + b * std::sin(phi)) * rr;
+    const float rot = sample_rotation(global_pixel);
+    const size_t n = light.rr.size();
+    for (size_t k = 0; k < n; ++k) {
+      const float phi = light.phase[k] + rot;
+      const Vec3 q = light.position + (t * std::cos(phi) + b * std::sin(phi)) * light.rr[k];
       const Vec3 to = q - p;
       const float d2 = dot(to, to);
       if (!(d2 > 0.0f)) continue;
-      Ray r;
-      r.org = org;
-      r.dir = q - org;
-      r.tmin = 0.0f;
-      r.tmax = 1.0f;
-      add_sample(to * (1.0f / std::sqrt(d2)), power * (inv_n / d2), r);
+      if (!sample(to * (1.0f / std::sqrt(d2)), light.power * (light.inv_n / d2), c)) continue;
+      if (ctx.shadows) add(c, Ray{origin(), 0.0f, q - origin(), 1.0f});
+      else s.accum[pixel] += c;
     }
   }
 }
 
-/// Shades one hit: emission, ambient and lights go to the pixel / shadow batch, mirror and
-/// refraction rays to the next wavefront.
 /// What shading needs of a hit: position, normals, material.
 struct Surface {
   Vec3 p;        ///< on the surface up to rounding (what offset_ray_origin assumes)
   Vec3 ng;       ///< unit geometric normal as stored (not flipped)
   Vec3 ns;       ///< unit shading normal as stored, or zero (= ng)
-  const Material* m;
+  const ShadeMaterial* m;
   uint32_t material_id;
 };
 
@@ -277,31 +349,25 @@ Surface triangle_surface(const Context& ctx, const Hit& hit) {
   if (!(dot(sf.ng, sf.ng) > 0.0f) || !is_finite(sf.ng))
     sf.ng = normalize(cross(scene.positions[i1] - scene.positions[i0], scene.positions[i2] - scene.positions[i0]));
   sf.ns = Vec3{};
-  if (scene.normals.size() == scene.positions.size())
+  if (ctx.vertex_normals)
     sf.ns = normalize(scene.normals[i0] * w0 + scene.normals[i1] * hit.u + scene.normals[i2] * hit.v);
-  sf.m = &ctx.material(prim);
   sf.material_id = ctx.material_id(prim);
+  sf.m = &ctx.shade[ctx.shade_index(sf.material_id)];
   return sf;
 }
 
 /// A voxel hit: the voxel's averaged colour, reflectivity, transparency and ior over the
 /// material of its largest triangle part (specular, Phong exponent, absorption, emission);
 /// the normal the tracer reports (cube face or contour plane). \p storage holds the material.
-Surface voxel_surface(const Context& ctx, const Segment& seg, const Hit& hit, Material& storage) {
+Surface voxel_surface(const Context& ctx, const Ray& ray, const Hit& hit, ShadeMaterial& storage) {
   const VoxelAttributes& a = ctx.voxels->attributes(hit.prim);
-  const Material& base = a.material < ctx.scene.materials.size() ? ctx.scene.materials[a.material] : ctx.fallback;
-  storage.diffuse = a.colour;
-  storage.specular = base.specular;
-  storage.phong_exponent = base.phong_exponent;
-  storage.reflectivity = a.reflectivity;
-  storage.transparency = a.transparency;
-  storage.ior = a.transparency > 0.0f ? a.ior : base.ior;
-  storage.absorption = base.absorption;
-  storage.emission = base.emission;
+  storage = ctx.shade[ctx.shade_index(a.material)];  // its ior is still the material's own
+  finish_shade_material(storage, a.colour, a.reflectivity, a.transparency, a.transparency > 0.0f ? a.ior : storage.ior,
+                        ctx.scene.ambient);
   Surface sf;
-  sf.p = seg.ray.org + seg.ray.dir * hit.t;
+  sf.p = ray.org + ray.dir * hit.t;
   sf.ng = hit.ng;
-  if (!(dot(sf.ng, sf.ng) > 0.0f) || !is_finite(sf.ng)) sf.ng = -normalize(seg.ray.dir);
+  if (!(dot(sf.ng, sf.ng) > 0.0f) || !is_finite(sf.ng)) sf.ng = -normalize(ray.dir);
   sf.ns = Vec3{};
   sf.m = &storage;
   sf.material_id = a.material;
@@ -310,43 +376,31 @@ Surface voxel_surface(const Context& ctx, const Segment& seg, const Hit& hit, Ma
 
 /// Shades one hit: emission, ambient and lights go to the pixel / shadow batch, mirror and
 /// refraction rays to the next wavefront.
-void shade_hit(const Context& ctx, Scratch& s, const Segment& seg, const Hit& hit,
-               uint32_t global_pixel) {
-  const Scene& scene = ctx.scene;
-  std::optional<Material> voxel_material;  // built only for voxel hits (off the triangle path)
-  const Surface sf = ctx.voxels ? voxel_surface(ctx, seg, hit, voxel_material.emplace()) : triangle_surface(ctx, hit);
+void shade_hit(const Context& ctx, Scratch& s, const Ray& ray, const PathState& seg, const Vec3& weight,
+               const Surface& sf) {
   const Vec3& p = sf.p;
-  const Vec3 d = normalize(seg.ray.dir);
+  const Vec3 d = normalize(ray.dir);
   const Vec3& ng = sf.ng;
   const bool front = dot(d, ng) < 0.0f;  // arriving on the side the winding faces
   const Vec3 ng_f = front ? ng : -ng;    // geometric normal facing the incoming ray
   Vec3 ns = ng_f;
   if (sf.ns != Vec3{}) ns = dot(sf.ns, ng_f) < 0.0f ? -sf.ns : sf.ns;
   const Vec3& ns_f = ns;
-
-  const Material& m = *sf.m;
-  Vec3& out = s.accum[seg.pixel];
-
-  float refl = std::clamp(m.reflectivity, 0.0f, 1.0f);
-  float trans = std::clamp(m.transparency, 0.0f, 1.0f);
-  if (refl + trans > 1.0f) {
-    const float k = 1.0f / (refl + trans);
-    refl *= k;
-    trans *= k;
-  }
-  const float local = std::max(0.0f, 1.0f - refl - trans);
+  const ShadeMaterial& m = *sf.m;
 
   // Local shading: emission + ambient + direct light (through the shadow batch).
-  out += seg.weight * (m.emission + scene.ambient * m.diffuse * local);
-  shade_lights(ctx, s, seg, m, local, p, ng_f, ns_f, d, global_pixel);
+  s.accum[seg.pixel] += weight * m.base;
+  shade_lights(ctx, s, seg.pixel, weight, m, p, ng_f, ns_f, d, seg.global);
 
   // Mirror and dielectric split.
-  float refl_w = refl;
+  float refl_w = m.refl;
   float refr_w = 0.0f;
   Vec3 refr_dir;
-  MediumStack refr_media = seg.media;
-  if (trans > 0.0f) {
+  MediumStack refr_media;
+  if (m.trans > 0.0f) {
+    const float trans = m.trans;
     const uint32_t mid = sf.material_id;
+    refr_media = seg.media;
     float n1, n2;
     if (front) {  // entering the medium behind the surface
       n1 = ctx.medium_ior(seg.media.top());
@@ -370,39 +424,21 @@ void shade_hit(const Context& ctx, Scratch& s, const Segment& seg, const Hit& hi
   }
 
   if (refl_w > 0.0f && seg.reflect_depth < ctx.max_reflect) {
-    const Vec3 w = seg.weight * refl_w;
+    const Vec3 w = weight * refl_w;
     if (max_component(w) >= kMinWeight) {
       Vec3 r = reflect(d, ns_f);
       if (dot(r, ng_f) <= 0.0f) r = reflect(d, ng_f);  // keep it above the geometric surface
-      Segment c;
-      c.ray.org = offset_ray_origin(p, ng_f);
-      c.ray.dir = normalize(r);
-      c.ray.tmin = 0.0f;
-      c.ray.tmax = kInf;
-      c.weight = w;
-      c.pixel = seg.pixel;
-      c.reflect_depth = static_cast<uint8_t>(seg.reflect_depth + 1);
-      c.refract_depth = seg.refract_depth;
-      c.primary = false;
-      c.media = seg.media;
-      s.next.push_back(c);
+      s.next_rays.push_back(Ray{offset_ray_origin(p, ng_f), 0.0f, normalize(r), kInf});
+      s.next_paths.push_back(PathState{w, seg.pixel, seg.global, static_cast<uint8_t>(seg.reflect_depth + 1),
+                                       seg.refract_depth, false, seg.media});
     }
   }
   if (refr_w > 0.0f && seg.refract_depth < ctx.max_refract) {
-    const Vec3 w = seg.weight * refr_w;
+    const Vec3 w = weight * refr_w;
     if (max_component(w) >= kMinWeight) {
-      Segment c;
-      c.ray.org = offset_ray_origin(p, -ng_f);
-      c.ray.dir = refr_dir;
-      c.ray.tmin = 0.0f;
-      c.ray.tmax = kInf;
-      c.weight = w;
-      c.pixel = seg.pixel;
-      c.reflect_depth = seg.reflect_depth;
-      c.refract_depth = static_cast<uint8_t>(seg.refract_depth + 1);
-      c.primary = false;
-      c.media = refr_media;
-      s.next.push_back(c);
+      s.next_rays.push_back(Ray{offset_ray_origin(p, -ng_f), 0.0f, refr_dir, kInf});
+      s.next_paths.push_back(PathState{w, seg.pixel, seg.global, seg.reflect_depth,
+                                       static_cast<uint8_t>(seg.refract_depth + 1), false, refr_media});
     }
   }
 }
@@ -418,14 +454,11 @@ void render_tile(const Context& ctx, const SkyEval& sky, Scratch& s, const Pinho
   const int x1 = std::min(x0 + ctx.tile, ctx.width), y1 = std::min(y0 + ctx.tile, ctx.height);
   const int tw = x1 - x0, th = y1 - y0;
   const size_t npix = static_cast<size_t>(tw) * static_cast<size_t>(th);
-  auto global = [&](uint32_t local_pixel) {
-    const int lx = static_cast<int>(local_pixel) % tw, ly = static_cast<int>(local_pixel) / tw;
-    return static_cast<size_t>(y0 + ly) * static_cast<size_t>(ctx.width) + static_cast<size_t>(x0 + lx);
-  };
 
   s.accum.assign(npix, Vec3{});
   if (ctx.want_cost) s.cost.assign(npix, 0);
-  s.current.clear();
+  s.rays.clear();
+  s.paths.clear();
   // Primary rays in 4x4 pixel blocks: every 16 consecutive rays of the wavefront are neighbours,
   // which a tracer may trace as one packet (the BVH does), and so are the shadow rays their hits
   // shoot. Each pixel's own segments keep their order, so the image is the same bit for bit.
@@ -433,29 +466,27 @@ void render_tile(const Context& ctx, const SkyEval& sky, Scratch& s, const Pinho
     for (int bx = x0; bx < x1; bx += 4)
       for (int y = by; y < std::min(by + 4, y1); ++y)
         for (int x = bx; x < std::min(bx + 4, x1); ++x) {
-          Segment seg;
-          seg.ray = camera.generate(static_cast<float>(x) + 0.5f, static_cast<float>(y) + 0.5f);
-          seg.weight = Vec3{1.0f};
-          seg.pixel = static_cast<uint32_t>((y - y0) * tw + (x - x0));
-          seg.reflect_depth = 0;
-          seg.refract_depth = 0;
-          seg.primary = true;
-          s.current.push_back(seg);
+          s.rays.push_back(camera.generate(static_cast<float>(x) + 0.5f, static_cast<float>(y) + 0.5f));
+          PathState& ps = s.paths.emplace_back();
+          ps.weight = Vec3{1.0f};
+          ps.pixel = static_cast<uint32_t>((y - y0) * tw + (x - x0));
+          ps.global = static_cast<uint32_t>(y) * static_cast<uint32_t>(ctx.width) + static_cast<uint32_t>(x);
+          ps.reflect_depth = 0;
+          ps.refract_depth = 0;
+          ps.primary = true;
         }
   counters.primary += npix;
 
-  while (!s.current.empty()) {
-    const size_t n = s.current.size();
-    s.rays.resize(n);
+  while (!s.rays.empty()) {
+    const size_t n = s.rays.size();
     s.hits.assign(n, Hit{});
-    for (size_t i = 0; i < n; ++i) s.rays[i] = s.current[i].ray;
     // Voxel media (seed 001): a ray inside a medium passes the voxels of that medium's material.
     std::span<const uint32_t> skip;
     if (ctx.voxels) {
       s.skip.resize(n);
       bool any = false;
       for (size_t i = 0; i < n; ++i) {
-        const int top = s.current[i].media.top();
+        const int top = s.paths[i].media.top();
         s.skip[i] = top < 0 ? kNoHit : static_cast<uint32_t>(top);
         any = any || top >= 0;
       }
@@ -474,39 +505,41 @@ void render_tile(const Context& ctx, const SkyEval& sky, Scratch& s, const Pinho
       for (size_t i = 0; i < n; ++i) {
         TraceStats ts;
         trace(i, 1, &ts);
-        s.cost[s.current[i].pixel] += ts.nodes_visited;
+        s.cost[s.paths[i].pixel] += ts.nodes_visited;
       }
     } else {
       trace(0, n, nullptr);
     }
 
-    s.next.clear();
+    s.next_rays.clear();
+    s.next_paths.clear();
     s.shadow_rays.clear();
     s.shadow_contrib.clear();
     s.shadow_pixel.clear();
     for (size_t i = 0; i < n; ++i) {
-      Segment seg = s.current[i];
+      const Ray& ray = s.rays[i];
+      const PathState& seg = s.paths[i];
       const Hit& hit = s.hits[i];
-      const float dir_len = length(seg.ray.dir);
       const bool valid = ctx.valid(hit);
-      const float dist = valid ? hit.t * dir_len : kInf;
-      seg.weight *= medium_attenuation(ctx, seg.media.top(), dist);
-      const size_t gp = global(seg.pixel);
+      Vec3 weight = seg.weight;
+      const int top = seg.media.top();
+      // Beer-Lambert over the segment (a factor of exactly 1 outside absorbing media: skipped).
+      if (ctx.absorbs(top)) weight *= medium_attenuation(ctx, top, valid ? hit.t * length(ray.dir) : kInf);
+      const size_t gp = seg.global;
       if (seg.primary) {
-        if (ctx.want_depth) ctx.film.depth[gp] = dist;
+        if (ctx.want_depth) ctx.film.depth[gp] = valid ? hit.t * length(ray.dir) : kInf;
         if (ctx.want_prim) ctx.film.prim_id[gp] = valid ? hit.prim : kNoHit;
       }
       if (!valid) {
-        s.accum[seg.pixel] += seg.weight * sky.radiance(seg.ray.dir);
+        s.accum[seg.pixel] += weight * sky.radiance(ray.dir);
         continue;
       }
-      if (max_component(seg.weight) <= 0.0f) continue;
-      shade_hit(ctx, s, seg, hit, static_cast<uint32_t>(gp));
+      if (max_component(weight) <= 0.0f) continue;
+      const Surface sf = ctx.voxels ? voxel_surface(ctx, ray, hit, s.voxel_material) : triangle_surface(ctx, hit);
+      shade_hit(ctx, s, ray, seg, weight, sf);
       if (seg.primary && ctx.want_normal) {
-        std::optional<Material> unused;
-        const Surface sf = ctx.voxels ? voxel_surface(ctx, seg, hit, unused.emplace()) : triangle_surface(ctx, hit);
         Vec3 nrm = sf.ns != Vec3{} ? sf.ns : sf.ng;
-        if (dot(nrm, seg.ray.dir) > 0.0f) nrm = -nrm;  // facing the camera
+        if (dot(nrm, ray.dir) > 0.0f) nrm = -nrm;  // facing the camera
         ctx.film.normal[gp] = nrm;
       }
     }
@@ -527,15 +560,18 @@ void render_tile(const Context& ctx, const SkyEval& sky, Scratch& s, const Pinho
       for (size_t i = 0; i < ns; ++i) s.accum[s.shadow_pixel[i]] += s.shadow_contrib[i] * s.shadow_t[i];
       counters.shadow += ns;
     }
-    counters.secondary += s.next.size();
-    std::swap(s.current, s.next);
+    counters.secondary += s.next_rays.size();
+    std::swap(s.rays, s.next_rays);
+    std::swap(s.paths, s.next_paths);
   }
 
-  for (uint32_t i = 0; i < npix; ++i) {
-    const size_t gp = global(i);
-    ctx.film.color[gp] = s.accum[i];
-    if (ctx.want_cost) ctx.film.cost[gp] = static_cast<uint32_t>(std::min<uint64_t>(s.cost[i], 0xFFFFFFFFu));
-  }
+  for (int y = y0; y < y1; ++y)
+    for (int x = x0; x < x1; ++x) {
+      const size_t i = static_cast<size_t>(y - y0) * static_cast<size_t>(tw) + static_cast<size_t>(x - x0);
+      const size_t gp = static_cast<size_t>(y) * static_cast<size_t>(ctx.width) + static_cast<size_t>(x);
+      ctx.film.color[gp] = s.accum[i];
+      if (ctx.want_cost) ctx.film.cost[gp] = static_cast<uint32_t>(std::min<uint64_t>(s.cost[i], 0xFFFFFFFFu));
+    }
 }
 
 }  // namespace
@@ -601,6 +637,38 @@ Film render_whitted(const Scene& scene, const Tracer& tracer, const RenderOption
   ctx.max_reflect = std::clamp(options.max_reflect, 0, kMaxDepthCap);
   ctx.max_refract = std::clamp(options.max_refract, 0, kMaxDepthCap);
   ctx.shadows = options.shadows;
+  ctx.vertex_normals = scene.normals.size() == scene.positions.size();
+  // Per-render constants of the shading: materials (the fallback last) and lights.
+  ctx.shade.reserve(scene.materials.size() + 1);
+  for (const Material& m : scene.materials) {
+    ctx.shade.push_back(make_shade_material(m, scene.ambient));
+    ctx.absorbing.push_back(max_component(m.absorption) > 0.0f ? 1 : 0);
+  }
+  ctx.shade.push_back(make_shade_material(ctx.fallback, scene.ambient));
+  for (const Light& light : scene.lights) {
+    LightSetup ls;
+    ls.type = light.type;
+    ls.power = light.color * light.intensity;
+    if (max_component(ls.power) <= 0.0f) continue;
+    ls.position = light.position;
+    if (light.type == LightType::Directional) {
+      ls.l = normalize(-light.direction);
+      if (ls.l == Vec3{}) continue;
+      ctx.lights.push_back(std::move(ls));
+      continue;
+    }
+    const int n = (light.type == LightType::Sphere && light.radius > 0.0f) ? std::clamp(light.samples, 1, 256) : 1;
+    ls.point = n == 1 && light.type != LightType::Sphere;
+    if (!ls.point) {
+      const float golden = kPi * (3.0f - std::sqrt(5.0f));
+      ls.inv_n = 1.0f / static_cast<float>(n);
+      for (int k = 0; k < n; ++k) {
+        ls.rr.push_back(light.radius * std::sqrt((static_cast<float>(k) + 0.5f) * ls.inv_n));
+        ls.phase.push_back(static_cast<float>(k) * golden);
+      }
+    }
+    ctx.lights.push_back(std::move(ls));
+  }
 
   const SkyEval sky(scene.sky);
   const PinholeCamera camera(cam, w, h);
