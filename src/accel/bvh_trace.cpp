@@ -12,7 +12,8 @@
 // x86-64 and uses AVX2 / AVX-512 where the CPU has them.
 //
 // Ray/box: slab test with a precomputed reciprocal direction; near and far planes are chosen
-// once per ray from the direction signs. A zero direction component has an infinite reciprocal;
+// once per ray from the direction signs. There is no separate test of the root box: the root
+// wide node's slab test culls the rays that miss the tree. A zero direction component has an infinite reciprocal;
 // when the origin lies exactly in that slab's plane, (bound - org) * rcp is 0 * inf = NaN, and
 // for such rays (only) the min/max chains are ordered so that a NaN slab is ignored (SSE/AVX
 // min/max return their second operand when either is NaN): a ray running inside a box's face
@@ -57,11 +58,6 @@ namespace {
 /// 1 + 2 * gamma(3), gamma(n) = n eps / (1 - n eps), eps = 2^-24 (Ize 2013).
 constexpr float kFarScale = 1.0f + 2.0f * (3.0f * 0x1p-24f) / (1.0f - 3.0f * 0x1p-24f);
 
-/// max / min that ignore a NaN first operand (the semantics of SSE maxss / minss with the
-/// possibly-NaN value first): a slab with 0 * inf = NaN distances does not restrict the ray.
-SPECULA_ACCEL_INLINE float max_ignore_nan(float maybe_nan, float t) { return maybe_nan > t ? maybe_nan : t; }
-SPECULA_ACCEL_INLINE float min_ignore_nan(float maybe_nan, float t) { return maybe_nan < t ? maybe_nan : t; }
-
 /// Per-ray constants of the box test (the kernels broadcast them to their SIMD width).
 struct BoxRay {
   float sox, soy, soz, srx, sry, srz;  ///< origin and reciprocal direction
@@ -73,23 +69,6 @@ struct BoxRay {
     zero_component = !(std::isfinite(srx) && std::isfinite(sry) && std::isfinite(srz));
   }
 };
-
-/// Scalar slab test of one node (used for the root only). Returns the entry distance within
-/// [tmin, tmax] or kInf on a miss.
-SPECULA_ACCEL_INLINE float intersect_box(const BvhNode& n, const BoxRay& r, float tmin, float tmax) {
-  const float tx1 = (n.min.x - r.sox) * r.srx, tx2 = (n.max.x - r.sox) * r.srx;
-  const float ty1 = (n.min.y - r.soy) * r.sry, ty2 = (n.max.y - r.soy) * r.sry;
-  const float tz1 = (n.min.z - r.soz) * r.srz, tz2 = (n.max.z - r.soz) * r.srz;
-  // Near/far of each slab by the direction's sign (rcp is +-inf, never NaN, for a zero component).
-  const bool px = r.srx >= 0.0f, py = r.sry >= 0.0f, pz = r.srz >= 0.0f;
-  float tnear = max_ignore_nan(px ? tx1 : tx2, tmin);
-  tnear = max_ignore_nan(py ? ty1 : ty2, tnear);
-  tnear = max_ignore_nan(pz ? tz1 : tz2, tnear);
-  float tfar = min_ignore_nan(px ? tx2 : tx1, tmax);
-  tfar = min_ignore_nan(py ? ty2 : ty1, tfar);
-  tfar = min_ignore_nan(pz ? tz2 : tz1, tfar) * kFarScale;
-  return tnear <= tfar ? tnear : kInf;
-}
 
 /// Rays the traversal can answer at all: finite origin and direction, non-zero direction,
 /// tmin <= tmax. Everything else misses (and is fully transmitted), without touching the tree.
