@@ -58,23 +58,41 @@ namespace {
 /// 1 + 2 * gamma(3), gamma(n) = n eps / (1 - n eps), eps = 2^-24 (Ize 2013).
 constexpr float kFarScale = 1.0f + 2.0f * (3.0f * 0x1p-24f) / (1.0f - 3.0f * 0x1p-24f);
 
+/// A Ray as two SSE registers: (org, tmin) and (dir, tmax) (the struct's layout, checked below).
+static_assert(sizeof(Ray) == 32 && offsetof(Ray, tmin) == 12 && offsetof(Ray, dir) == 16 && offsetof(Ray, tmax) == 28,
+              "Ray must be org, tmin, dir, tmax: the kernels load it as two SSE registers");
+SPECULA_ACCEL_INLINE __m128 load_org_tmin(const Ray& ray) { return _mm_loadu_ps(&ray.org.x); }
+SPECULA_ACCEL_INLINE __m128 load_dir_tmax(const Ray& ray) { return _mm_loadu_ps(&ray.dir.x); }
+/// Lanes 0..2 of \p a that are finite (|a| < inf; NaN is not).
+SPECULA_ACCEL_INLINE int finite_xyz(__m128 a) {
+  const __m128 abs = _mm_and_ps(a, _mm_castsi128_ps(_mm_set1_epi32(0x7FFFFFFF)));
+  return _mm_movemask_ps(_mm_cmplt_ps(abs, _mm_set1_ps(kInf))) & 7;
+}
+
 /// Per-ray constants of the box test (the kernels broadcast them to their SIMD width).
+/// The three reciprocals are one SSE division (the same IEEE quotients as three scalar ones).
 struct BoxRay {
   float sox, soy, soz, srx, sry, srz;  ///< origin and reciprocal direction
   bool zero_component;  ///< some direction component is +-0 (or denormal): rcp infinite
 
   explicit SPECULA_ACCEL_INLINE BoxRay(const Ray& ray) {
     sox = ray.org.x, soy = ray.org.y, soz = ray.org.z;
-    srx = 1.0f / ray.dir.x, sry = 1.0f / ray.dir.y, srz = 1.0f / ray.dir.z;  // +-inf for +-0
-    zero_component = !(std::isfinite(srx) && std::isfinite(sry) && std::isfinite(srz));
+    const __m128 rcp = _mm_div_ps(_mm_set1_ps(1.0f), load_dir_tmax(ray));  // +-inf for +-0; lane 3 unused
+    alignas(16) float r[4];
+    _mm_store_ps(r, rcp);
+    srx = r[0], sry = r[1], srz = r[2];
+    zero_component = finite_xyz(rcp) != 7;
   }
 };
 
 /// Rays the traversal can answer at all: finite origin and direction, non-zero direction,
 /// tmin <= tmax. Everything else misses (and is fully transmitted), without touching the tree.
+/// (One SSE compare per condition instead of six scalar finiteness tests with branches.)
 SPECULA_ACCEL_INLINE bool valid_ray(const Ray& ray) {
-  return is_finite(ray.org) && is_finite(ray.dir) && (ray.dir.x != 0.0f || ray.dir.y != 0.0f || ray.dir.z != 0.0f) &&
-         ray.tmin <= ray.tmax;
+  const __m128 o = load_org_tmin(ray), d = load_dir_tmax(ray);
+  const bool finite = (finite_xyz(o) & finite_xyz(d)) == 7;
+  const bool nonzero = (_mm_movemask_ps(_mm_cmpneq_ps(d, _mm_setzero_ps())) & 7) != 0;  // NaN excluded above
+  return finite && nonzero && ray.tmin <= ray.tmax;
 }
 
 /// One pending subtree: a wide node (count == 0) or a leaf's triangle range, with its entry t.
