@@ -120,38 +120,46 @@ struct BvhView {
 
 // The kernels: one source, compiled per node width and instruction set.
 #define SPECULA_KERNEL_NS sse4
+#define SPECULA_KERNEL_PAIRS 0
 #define SPECULA_KERNEL_WIDTH 4
 #define SPECULA_KERNEL_TARGET
 #include "accel/bvh_kernel.inc"
 #undef SPECULA_KERNEL_NS
 #undef SPECULA_KERNEL_WIDTH
 #undef SPECULA_KERNEL_TARGET
+#undef SPECULA_KERNEL_PAIRS
 
 #define SPECULA_KERNEL_NS avx2x8
+#define SPECULA_KERNEL_PAIRS 0
 #define SPECULA_KERNEL_WIDTH 8
 #define SPECULA_KERNEL_TARGET __attribute__((target("avx2")))
 #include "accel/bvh_kernel.inc"
 #undef SPECULA_KERNEL_NS
 #undef SPECULA_KERNEL_WIDTH
 #undef SPECULA_KERNEL_TARGET
+#undef SPECULA_KERNEL_PAIRS
 
 // The 8-wide kernel again for AVX-512VL: the same 256-bit operations, but 32 vector registers,
 // so the per-ray constants of the slab and triangle tests are never spilled to the stack.
 #define SPECULA_KERNEL_NS avx512x8
+#define SPECULA_KERNEL_PAIRS 1
 #define SPECULA_KERNEL_WIDTH 8
 #define SPECULA_KERNEL_TARGET __attribute__((target("avx2,avx512f,avx512vl")))
 #include "accel/bvh_kernel.inc"
 #undef SPECULA_KERNEL_NS
 #undef SPECULA_KERNEL_WIDTH
 #undef SPECULA_KERNEL_TARGET
+#undef SPECULA_KERNEL_PAIRS
 
 #define SPECULA_KERNEL_NS avx512x16
+#define SPECULA_KERNEL_PAIRS 1
 #define SPECULA_KERNEL_WIDTH 16
 #define SPECULA_KERNEL_TARGET __attribute__((target("avx2,avx512f,avx512vl")))
 #include "accel/bvh_kernel.inc"
 #undef SPECULA_KERNEL_NS
 #undef SPECULA_KERNEL_WIDTH
 #undef SPECULA_KERNEL_TARGET
+#undef SPECULA_KERNEL_PAIRS
 
 class BvhTraversal {
  public:
