@@ -25,7 +25,8 @@
 //
 // Leaves are tested four triangles at a time (BvhTriangle4 blocks, SSE intersect_watertight4:
 // bit-identical to the scalar test; a block where some edge function is exactly zero goes to
-// the scalar test with its double-precision fallback), so every kernel reports bit-identical
+// the scalar test with its double-precision fallback), two blocks per AVX operation in the
+// AVX-512 kernels (the same operations lane by lane), so every kernel reports bit-identical
 // hits. Child ordering follows Embree's wide single-ray traversal: one hit child is taken
 // directly, two with one compare, more are pushed and insertion-sorted on the stack top;
 // pushed subtrees are prefetched.
