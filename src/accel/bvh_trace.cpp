@@ -12,7 +12,8 @@
 // x86-64 and uses AVX2 / AVX-512 where the CPU has them.
 //
 // Ray/box: slab test with a precomputed reciprocal direction; near and far planes are chosen
-// once per ray from the direction signs. A zero direction component has an infinite reciprocal;
+// once per ray from the direction signs. There is no separate test of the root box: the root
+// wide node's slab test culls the rays that miss the tree. A zero direction component has an infinite reciprocal;
 // when the origin lies exactly in that slab's plane, (bound - org) * rcp is 0 * inf = NaN, and
 // for such rays (only) the min/max chains are ordered so that a NaN slab is ignored (SSE/AVX
 // min/max return their second operand when either is NaN): a ray running inside a box's face
@@ -24,7 +25,8 @@
 //
 // Leaves are tested four triangles at a time (BvhTriangle4 blocks, SSE intersect_watertight4:
 // bit-identical to the scalar test; a block where some edge function is exactly zero goes to
-// the scalar test with its double-precision fallback), so every kernel reports bit-identical
+// the scalar test with its double-precision fallback), two blocks per AVX operation in the
+// AVX-512 kernels (the same operations lane by lane), so every kernel reports bit-identical
 // hits. Child ordering follows Embree's wide single-ray traversal: one hit child is taken
 // directly, two with one compare, more are pushed and insertion-sorted on the stack top;
 // pushed subtrees are prefetched.
@@ -57,45 +59,41 @@ namespace {
 /// 1 + 2 * gamma(3), gamma(n) = n eps / (1 - n eps), eps = 2^-24 (Ize 2013).
 constexpr float kFarScale = 1.0f + 2.0f * (3.0f * 0x1p-24f) / (1.0f - 3.0f * 0x1p-24f);
 
-/// max / min that ignore a NaN first operand (the semantics of SSE maxss / minss with the
-/// possibly-NaN value first): a slab with 0 * inf = NaN distances does not restrict the ray.
-SPECULA_ACCEL_INLINE float max_ignore_nan(float maybe_nan, float t) { return maybe_nan > t ? maybe_nan : t; }
-SPECULA_ACCEL_INLINE float min_ignore_nan(float maybe_nan, float t) { return maybe_nan < t ? maybe_nan : t; }
+/// A Ray as two SSE registers: (org, tmin) and (dir, tmax) (the struct's layout, checked below).
+static_assert(sizeof(Ray) == 32 && offsetof(Ray, tmin) == 12 && offsetof(Ray, dir) == 16 && offsetof(Ray, tmax) == 28,
+              "Ray must be org, tmin, dir, tmax: the kernels load it as two SSE registers");
+SPECULA_ACCEL_INLINE __m128 load_org_tmin(const Ray& ray) { return _mm_loadu_ps(&ray.org.x); }
+SPECULA_ACCEL_INLINE __m128 load_dir_tmax(const Ray& ray) { return _mm_loadu_ps(&ray.dir.x); }
+/// Lanes 0..2 of \p a that are finite (|a| < inf; NaN is not).
+SPECULA_ACCEL_INLINE int finite_xyz(__m128 a) {
+  const __m128 abs = _mm_and_ps(a, _mm_castsi128_ps(_mm_set1_epi32(0x7FFFFFFF)));
+  return _mm_movemask_ps(_mm_cmplt_ps(abs, _mm_set1_ps(kInf))) & 7;
+}
 
 /// Per-ray constants of the box test (the kernels broadcast them to their SIMD width).
+/// The three reciprocals are one SSE division (the same IEEE quotients as three scalar ones).
 struct BoxRay {
   float sox, soy, soz, srx, sry, srz;  ///< origin and reciprocal direction
   bool zero_component;  ///< some direction component is +-0 (or denormal): rcp infinite
 
   explicit SPECULA_ACCEL_INLINE BoxRay(const Ray& ray) {
     sox = ray.org.x, soy = ray.org.y, soz = ray.org.z;
-    srx = 1.0f / ray.dir.x, sry = 1.0f / ray.dir.y, srz = 1.0f / ray.dir.z;  // +-inf for +-0
-    zero_component = !(std::isfinite(srx) && std::isfinite(sry) && std::isfinite(srz));
+    const __m128 rcp = _mm_div_ps(_mm_set1_ps(1.0f), load_dir_tmax(ray));  // +-inf for +-0; lane 3 unused
+    alignas(16) float r[4];
+    _mm_store_ps(r, rcp);
+    srx = r[0], sry = r[1], srz = r[2];
+    zero_component = finite_xyz(rcp) != 7;
   }
 };
 
-/// Scalar slab test of one node (used for the root only). Returns the entry distance within
-/// [tmin, tmax] or kInf on a miss.
-SPECULA_ACCEL_INLINE float intersect_box(const BvhNode& n, const BoxRay& r, float tmin, float tmax) {
-  const float tx1 = (n.min.x - r.sox) * r.srx, tx2 = (n.max.x - r.sox) * r.srx;
-  const float ty1 = (n.min.y - r.soy) * r.sry, ty2 = (n.max.y - r.soy) * r.sry;
-  const float tz1 = (n.min.z - r.soz) * r.srz, tz2 = (n.max.z - r.soz) * r.srz;
-  // Near/far of each slab by the direction's sign (rcp is +-inf, never NaN, for a zero component).
-  const bool px = r.srx >= 0.0f, py = r.sry >= 0.0f, pz = r.srz >= 0.0f;
-  float tnear = max_ignore_nan(px ? tx1 : tx2, tmin);
-  tnear = max_ignore_nan(py ? ty1 : ty2, tnear);
-  tnear = max_ignore_nan(pz ? tz1 : tz2, tnear);
-  float tfar = min_ignore_nan(px ? tx2 : tx1, tmax);
-  tfar = min_ignore_nan(py ? ty2 : ty1, tfar);
-  tfar = min_ignore_nan(pz ? tz2 : tz1, tfar) * kFarScale;
-  return tnear <= tfar ? tnear : kInf;
-}
-
 /// Rays the traversal can answer at all: finite origin and direction, non-zero direction,
 /// tmin <= tmax. Everything else misses (and is fully transmitted), without touching the tree.
+/// (One SSE compare per condition instead of six scalar finiteness tests with branches.)
 SPECULA_ACCEL_INLINE bool valid_ray(const Ray& ray) {
-  return is_finite(ray.org) && is_finite(ray.dir) && (ray.dir.x != 0.0f || ray.dir.y != 0.0f || ray.dir.z != 0.0f) &&
-         ray.tmin <= ray.tmax;
+  const __m128 o = load_org_tmin(ray), d = load_dir_tmax(ray);
+  const bool finite = (finite_xyz(o) & finite_xyz(d)) == 7;
+  const bool nonzero = (_mm_movemask_ps(_mm_cmpneq_ps(d, _mm_setzero_ps())) & 7) != 0;  // NaN excluded above
+  return finite && nonzero && ray.tmin <= ray.tmax;
 }
 
 /// One pending subtree: a wide node (count == 0) or a leaf's triangle range, with its entry t.
@@ -123,38 +121,46 @@ struct BvhView {
 
 // The kernels: one source, compiled per node width and instruction set.
 #define SPECULA_KERNEL_NS sse4
+#define SPECULA_KERNEL_PAIRS 0
 #define SPECULA_KERNEL_WIDTH 4
 #define SPECULA_KERNEL_TARGET
 #include "accel/bvh_kernel.inc"
 #undef SPECULA_KERNEL_NS
 #undef SPECULA_KERNEL_WIDTH
 #undef SPECULA_KERNEL_TARGET
+#undef SPECULA_KERNEL_PAIRS
 
 #define SPECULA_KERNEL_NS avx2x8
+#define SPECULA_KERNEL_PAIRS 0
 #define SPECULA_KERNEL_WIDTH 8
 #define SPECULA_KERNEL_TARGET __attribute__((target("avx2")))
 #include "accel/bvh_kernel.inc"
 #undef SPECULA_KERNEL_NS
 #undef SPECULA_KERNEL_WIDTH
 #undef SPECULA_KERNEL_TARGET
+#undef SPECULA_KERNEL_PAIRS
 
 // The 8-wide kernel again for AVX-512VL: the same 256-bit operations, but 32 vector registers,
 // so the per-ray constants of the slab and triangle tests are never spilled to the stack.
 #define SPECULA_KERNEL_NS avx512x8
+#define SPECULA_KERNEL_PAIRS 1
 #define SPECULA_KERNEL_WIDTH 8
 #define SPECULA_KERNEL_TARGET __attribute__((target("avx2,avx512f,avx512vl")))
 #include "accel/bvh_kernel.inc"
 #undef SPECULA_KERNEL_NS
 #undef SPECULA_KERNEL_WIDTH
 #undef SPECULA_KERNEL_TARGET
+#undef SPECULA_KERNEL_PAIRS
 
 #define SPECULA_KERNEL_NS avx512x16
+#define SPECULA_KERNEL_PAIRS 1
 #define SPECULA_KERNEL_WIDTH 16
 #define SPECULA_KERNEL_TARGET __attribute__((target("avx2,avx512f,avx512vl")))
 #include "accel/bvh_kernel.inc"
 #undef SPECULA_KERNEL_NS
 #undef SPECULA_KERNEL_WIDTH
 #undef SPECULA_KERNEL_TARGET
+#undef SPECULA_KERNEL_PAIRS
 
 class BvhTraversal {
  public:

@@ -14,6 +14,7 @@
 #include <emmintrin.h>  // SSE2: x86-64 baseline
 
 #include <cmath>
+#include <cstddef>
 #include <cstdint>
 #include <limits>
 
@@ -131,14 +132,22 @@ inline bool intersect_watertight(const WatertightRay& r, const float* v, float t
 }
 
 /// The per-ray constants of WatertightRay broadcast to four lanes (hoisted out of the leaf loop).
+/// The axis permutation is kept as byte offsets into a block's vertex (kx * 16 ...), so a lane
+/// load is one addressing mode (block + offset + vertex) and nothing is recomputed per leaf.
 struct WatertightRay4 {
-  int kx, ky, kz;
+  size_t kx, ky, kz;  ///< byte offsets of the permuted axes within one vertex's [axis][lane] rows
   __m128 ox, oy, oz, sx, sy, sz;
 
   explicit SPECULA_ACCEL_INLINE WatertightRay4(const WatertightRay& r)
-      : kx(r.kx), ky(r.ky), kz(r.kz), ox(_mm_set1_ps(r.ox)), oy(_mm_set1_ps(r.oy)), oz(_mm_set1_ps(r.oz)),
-        sx(_mm_set1_ps(r.sx)), sy(_mm_set1_ps(r.sy)), sz(_mm_set1_ps(r.sz)) {}
+      : kx(static_cast<size_t>(r.kx) * sizeof(__m128)), ky(static_cast<size_t>(r.ky) * sizeof(__m128)),
+        kz(static_cast<size_t>(r.kz) * sizeof(__m128)), ox(_mm_set1_ps(r.ox)), oy(_mm_set1_ps(r.oy)),
+        oz(_mm_set1_ps(r.oz)), sx(_mm_set1_ps(r.sx)), sy(_mm_set1_ps(r.sy)), sz(_mm_set1_ps(r.sz)) {}
 };
+
+/// Lanes of vertex \p vertex, axis at byte offset \p axis_offset, of a block's v[3][3][4].
+SPECULA_ACCEL_INLINE __m128 load_lanes(const float (&v)[3][3][4], int vertex, size_t axis_offset) {
+  return _mm_load_ps(reinterpret_cast<const float*>(reinterpret_cast<const char*>(v[vertex]) + axis_offset));
+}
 
 /// intersect_watertight() for four triangles at once, \p v[vertex][axis][lane] holding one
 /// coordinate of the four triangles (16-byte aligned; padding lanes NaN: never hit). The lanes
@@ -150,14 +159,14 @@ struct WatertightRay4 {
 /// t, u, v.
 SPECULA_ACCEL_INLINE int intersect_watertight4(const WatertightRay4& r, const float (&v)[3][3][4], __m128 tmin, __m128 tmax,
                                  __m128& t_out, __m128& u_out, __m128& v_out) {
-  const __m128 az = _mm_sub_ps(_mm_load_ps(v[0][r.kz]), r.oz), bz = _mm_sub_ps(_mm_load_ps(v[1][r.kz]), r.oz),
-               cz = _mm_sub_ps(_mm_load_ps(v[2][r.kz]), r.oz);
-  const __m128 ax = _mm_sub_ps(_mm_sub_ps(_mm_load_ps(v[0][r.kx]), r.ox), _mm_mul_ps(r.sx, az));
-  const __m128 ay = _mm_sub_ps(_mm_sub_ps(_mm_load_ps(v[0][r.ky]), r.oy), _mm_mul_ps(r.sy, az));
-  const __m128 bx = _mm_sub_ps(_mm_sub_ps(_mm_load_ps(v[1][r.kx]), r.ox), _mm_mul_ps(r.sx, bz));
-  const __m128 by = _mm_sub_ps(_mm_sub_ps(_mm_load_ps(v[1][r.ky]), r.oy), _mm_mul_ps(r.sy, bz));
-  const __m128 cx = _mm_sub_ps(_mm_sub_ps(_mm_load_ps(v[2][r.kx]), r.ox), _mm_mul_ps(r.sx, cz));
-  const __m128 cy = _mm_sub_ps(_mm_sub_ps(_mm_load_ps(v[2][r.ky]), r.oy), _mm_mul_ps(r.sy, cz));
+  const __m128 az = _mm_sub_ps(load_lanes(v, 0, r.kz), r.oz), bz = _mm_sub_ps(load_lanes(v, 1, r.kz), r.oz),
+               cz = _mm_sub_ps(load_lanes(v, 2, r.kz), r.oz);
+  const __m128 ax = _mm_sub_ps(_mm_sub_ps(load_lanes(v, 0, r.kx), r.ox), _mm_mul_ps(r.sx, az));
+  const __m128 ay = _mm_sub_ps(_mm_sub_ps(load_lanes(v, 0, r.ky), r.oy), _mm_mul_ps(r.sy, az));
+  const __m128 bx = _mm_sub_ps(_mm_sub_ps(load_lanes(v, 1, r.kx), r.ox), _mm_mul_ps(r.sx, bz));
+  const __m128 by = _mm_sub_ps(_mm_sub_ps(load_lanes(v, 1, r.ky), r.oy), _mm_mul_ps(r.sy, bz));
+  const __m128 cx = _mm_sub_ps(_mm_sub_ps(load_lanes(v, 2, r.kx), r.ox), _mm_mul_ps(r.sx, cz));
+  const __m128 cy = _mm_sub_ps(_mm_sub_ps(load_lanes(v, 2, r.ky), r.oy), _mm_mul_ps(r.sy, cz));
   const __m128 u = _mm_sub_ps(_mm_mul_ps(cx, by), _mm_mul_ps(cy, bx));
   const __m128 w1 = _mm_sub_ps(_mm_mul_ps(ax, cy), _mm_mul_ps(ay, cx));
   const __m128 w2 = _mm_sub_ps(_mm_mul_ps(bx, ay), _mm_mul_ps(by, ax));
@@ -165,9 +174,13 @@ SPECULA_ACCEL_INLINE int intersect_watertight4(const WatertightRay4& r, const fl
   // A zero edge function is recomputed in double by the scalar test, which may flip the sign
   // of the other two as well: check before rejecting.
   const __m128 on_edge = _mm_or_ps(_mm_or_ps(_mm_cmpeq_ps(u, zero), _mm_cmpeq_ps(w1, zero)), _mm_cmpeq_ps(w2, zero));
-  const __m128 nonneg = _mm_and_ps(_mm_and_ps(_mm_cmpge_ps(u, zero), _mm_cmpge_ps(w1, zero)), _mm_cmpge_ps(w2, zero));
-  const __m128 nonpos = _mm_and_ps(_mm_and_ps(_mm_cmple_ps(u, zero), _mm_cmple_ps(w1, zero)), _mm_cmple_ps(w2, zero));
-  const __m128 inside = _mm_or_ps(nonneg, nonpos);
+  // Inside: the smallest edge function >= 0 or the largest <= 0 (4 min/max and 2 compares
+  // instead of 6 compares and 4 ands). min/max return their second operand when one is NaN, so
+  // a lane with some but not all of u, w1, w2 NaN may pass here where the scalar test rejects
+  // it; its det and t are NaN then, and the t range test below rejects it all the same. A lane
+  // with all three NaN (padding) fails here.
+  const __m128 lo = _mm_min_ps(_mm_min_ps(u, w1), w2), hi = _mm_max_ps(_mm_max_ps(u, w1), w2);
+  const __m128 inside = _mm_or_ps(_mm_cmpge_ps(lo, zero), _mm_cmple_ps(hi, zero));
   const int inside_mask = _mm_movemask_ps(inside);
   if (_mm_movemask_ps(on_edge) != 0) [[unlikely]] return -1;
   if (inside_mask == 0) return 0;  // the common case: no lane inside
@@ -202,6 +215,26 @@ inline void lane_vertices(const BvhTriangle4& blk, int lane, float (&v)[9]) {
     for (int a = 0; a < 3; ++a) v[3 * k + a] = blk.v[k][a][lane];
 }
 
+namespace detail {
+/// test_block()'s rare path (an edge function exactly zero in some lane): every lane through the
+/// scalar test, which decides in double. Out of line and cold, so the traversal loops it is
+/// instantiated in do not keep (or hoist to every leaf) the address arithmetic of its
+/// permuted scalar loads.
+template <class RuleOf, class OnHit>
+[[gnu::noinline, gnu::cold]] bool test_block_scalar(const WatertightRay& wr, const BvhTriangle4& blk, float tmin,
+                                                    const float& tmax, RuleOf& rule_of, OnHit& on_hit) {
+  for (int lane = 0; lane < 4; ++lane) {
+    const uint32_t i = blk.index[lane];
+    if (i == kNoHit) continue;
+    float v[9];
+    lane_vertices(blk, lane, v);
+    TriHit th;
+    if (intersect_watertight(wr, v, tmin, tmax, th, rule_of(i)) && on_hit(i, lane, th.t, th.u, th.v)) return true;
+  }
+  return false;
+}
+}  // namespace detail
+
 /// Tests one block of four triangles and calls on_hit(index, lane, t, u, v) for each hit lane in
 /// lane order, as testing the lanes one by one with intersect_watertight() would: \p tmax is
 /// read again before every scalar lane test, so a visitor that shrinks it (closest hit) sees the
@@ -224,15 +257,7 @@ SPECULA_ACCEL_INLINE bool test_block(const WatertightRay& wr, const WatertightRa
     return false;
   }
   // An edge function is exactly zero in some lane: the scalar test decides in double.
-  for (int lane = 0; lane < 4; ++lane) {
-    const uint32_t i = blk.index[lane];
-    if (i == kNoHit) continue;
-    float v[9];
-    lane_vertices(blk, lane, v);
-    TriHit th;
-    if (intersect_watertight(wr, v, tmin, tmax, th, rule_of(i)) && on_hit(i, lane, th.t, th.u, th.v)) return true;
-  }
-  return false;
+  return detail::test_block_scalar(wr, blk, tmin, tmax, rule_of, on_hit);
 }
 
 /// rule_of for test_block(): every triangle closed.
