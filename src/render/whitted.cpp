@@ -244,9 +244,15 @@ Vec3 medium_attenuation(const Context& ctx, int id, float dist) {
   return out;
 }
 
-/// The per-pixel rotation of the sphere-light sample spiral. Opaque to the optimiser (noipa) so
-/// it is computed only for sphere lights, not hoisted out of the light loop for every hit.
-[[gnu::noipa]] float sample_rotation(uint32_t global_pixel) {
+/// The per-pixel rotation of the sphere-light sample spiral. Opaque to the optimiser (GCC's
+/// noipa) so it is computed only for sphere lights, not hoisted out of the light loop for every
+/// hit. Clang has no noipa; noinline there.
+#if defined(__clang__)
+#define SPECULA_OPAQUE [[gnu::noinline]]
+#else
+#define SPECULA_OPAQUE [[gnu::noipa]]
+#endif
+SPECULA_OPAQUE float sample_rotation(uint32_t global_pixel) {
   return 2.0f * kPi * to_unit_float(hash_u32(global_pixel * 0x9E3779B9u + 0x632BE5ABu));
 }
 
