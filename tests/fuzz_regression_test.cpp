@@ -18,6 +18,7 @@
 #include "specula/error.h"
 #include "specula/image.h"
 #include "specula/load.h"
+#include "test_util.h"
 
 namespace fs = std::filesystem;
 
@@ -113,14 +114,19 @@ fs::path findings_dir() {
 }
 
 std::string load_error(const fs::path& p) {
-  try {
+  return specula::test::error_of([&] {
     specula::LoadOptions o;
     o.warn = [](const std::string&) {};
     (void)specula::load_scene(p.string(), o);
-  } catch (const specula::Error& e) {
-    return e.what();
-  }
-  return {};
+  });
+}
+
+/// The message of read_image()'s refusal of \p p, or "(no specula::Error thrown)".
+std::string image_error(const fs::path& p) {
+  return specula::test::error_of([&] {
+    int w = 0, h = 0;
+    (void)specula::read_image(p.string(), w, h);
+  });
 }
 
 }  // namespace
@@ -152,13 +158,8 @@ TEST(FuzzFindings, ExrWithCorruptPixelDataIsAnError) {
                        "leak-08ad273b-exr-bad-pixel-data";
   ASSERT_TRUE(fs::is_regular_file(src));
   fs::copy_file(src, dir / "sky.exr");
-  int w = 0, h = 0;
-  try {
-    (void)specula::read_image((dir / "sky.exr").string(), w, h);
-    ADD_FAILURE() << "corrupt EXR loaded";
-  } catch (const specula::Error& e) {
-    EXPECT_NE(std::string(e.what()).find("sky.exr: cannot read EXR: "), std::string::npos) << e.what();
-  }
+  const std::string msg = image_error(dir / "sky.exr");
+  EXPECT_NE(msg.find("sky.exr: cannot read EXR: "), std::string::npos) << msg;
   fs::remove_all(dir);
 }
 
@@ -210,13 +211,8 @@ TEST(FuzzFindings, RadianceHdrTruncatedOrBombIsAnError) {
   };
   for (const auto& [name, bytes] : cases) {
     std::ofstream(dir / name, std::ios::binary) << bytes;
-    int w = 0, h = 0;
-    try {
-      (void)specula::read_image((dir / name).string(), w, h);
-      ADD_FAILURE() << name << " loaded " << w << "x" << h;
-    } catch (const specula::Error& e) {
-      EXPECT_NE(std::string(e.what()).find(name + ": cannot read Radiance HDR: "), std::string::npos) << e.what();
-    }
+    const std::string msg = image_error(dir / name);
+    EXPECT_NE(msg.find(name + ": cannot read Radiance HDR: "), std::string::npos) << msg;
   }
   // The complete file decodes: two RLE scanlines of 8 pixels, (100, 50, 25) * 2^(130 - 136).
   std::ofstream(dir / "ok.hdr", std::ios::binary) << rle_head + rle_line + rle_line;
@@ -243,14 +239,8 @@ TEST(FuzzFindings, ExrTileCoordinatesOutOfRangeAreAnError) {
   ASSERT_LT(first + 4, exr.size());
   exr.replace(static_cast<size_t>(first), 4, std::string("\x00\x00\x00\x80", 4));  // tile x = INT_MIN
   std::ofstream(dir / "tile.exr", std::ios::binary) << exr;
-  int w = 0, h = 0;
-  try {
-    (void)specula::read_image((dir / "tile.exr").string(), w, h);
-    ADD_FAILURE() << "tile at x = -2^31 loaded";
-  } catch (const specula::Error& e) {
-    EXPECT_NE(std::string(e.what()).find("tile.exr: cannot read EXR: tile 0: coordinates (-2147483648, 0"), std::string::npos)
-        << e.what();
-  }
+  const std::string msg = image_error(dir / "tile.exr");
+  EXPECT_NE(msg.find("tile.exr: cannot read EXR: tile 0: coordinates (-2147483648, 0"), std::string::npos) << msg;
   fs::remove_all(dir);
 }
 
@@ -263,14 +253,9 @@ TEST(FuzzFindings, ExrShortTilesAttributeIsAnError) {
   ASSERT_NE(tiles, std::string::npos);
   exr[tiles + 9] = 4;  // size 9 -> 4; the other 5 bytes now read as the next attribute
   std::ofstream(dir / "tiles.exr", std::ios::binary) << exr;
-  int w = 0, h = 0;
-  try {
-    (void)specula::read_image((dir / "tiles.exr").string(), w, h);
-    ADD_FAILURE() << "short tiles attribute loaded";
-  } catch (const specula::Error& e) {
-    EXPECT_NE(std::string(e.what()).find("tiles.exr: cannot read EXR: byte "), std::string::npos) << e.what();
-    EXPECT_NE(std::string(e.what()).find("attribute 'tiles' has 4 bytes, expected 9"), std::string::npos) << e.what();
-  }
+  const std::string msg = image_error(dir / "tiles.exr");
+  EXPECT_NE(msg.find("tiles.exr: cannot read EXR: byte "), std::string::npos) << msg;
+  EXPECT_NE(msg.find("attribute 'tiles' has 4 bytes, expected 9"), std::string::npos) << msg;
   fs::remove_all(dir);
 }
 
@@ -295,21 +280,17 @@ TEST(FuzzFindings, PngChunkLongerThanTheFileIsRefusedBeforeAllocating) {
   fs::copy_file(fs::path(SPECULA_TEST_DATA_DIR) / "fuzz-regressions" / "fuzz_sky_image" /
                     "oom-16ae1b3d-png-idat-length-beyond-file",
                 dir / "bomb.png");
-  int w = 0, h = 0;
-  try {
-    (void)specula::read_image((dir / "bomb.png").string(), w, h);
-    ADD_FAILURE() << "PNG loaded";
-  } catch (const specula::Error& e) {
-    EXPECT_NE(std::string(e.what()).find("bomb.png: cannot read PNG: byte 63: chunk 'IDAT' claims 1700986898 bytes, "
-                                         "the file has 67 left (truncated or corrupt)"),
-              std::string::npos)
-        << e.what();
-  }
+  const std::string msg = image_error(dir / "bomb.png");
+  EXPECT_NE(msg.find("bomb.png: cannot read PNG: byte 63: chunk 'IDAT' claims 1700986898 bytes, "
+                     "the file has 67 left (truncated or corrupt)"),
+            std::string::npos)
+      << msg;
   const fs::path ok = fs::path(SPECULA_SOURCE_DIR) / "fuzz" / "corpus" / "fuzz_sky_image" / "empty_idat_2x1.png";
   std::ifstream in(ok, std::ios::binary);
   std::string png((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
   png += "trailing bytes after IEND \xff\xff\xff\xff";
   std::ofstream(dir / "trailing.png", std::ios::binary) << png;
+  int w = 0, h = 0;
   EXPECT_EQ(specula::read_image((dir / "trailing.png").string(), w, h).size(), 2u);
   fs::remove_all(dir);
 }
@@ -320,12 +301,7 @@ TEST(FuzzFindings, ExrClaimingHugeTilesIsRefusedBeforeAllocating) {
   const fs::path dir = findings_dir();
   fs::copy_file(fs::path(SPECULA_TEST_DATA_DIR) / "fuzz-regressions" / "fuzz_sky_image" / "oom-05721490-exr-huge-tiles",
                 dir / "huge.exr");
-  int w = 0, h = 0;
-  try {
-    (void)specula::read_image((dir / "huge.exr").string(), w, h);
-    ADD_FAILURE() << "huge EXR loaded";
-  } catch (const specula::Error& e) {
-    EXPECT_NE(std::string(e.what()).find("to decode, over the limit of 1 GiB (--max-image-memory raises it)"), std::string::npos) << e.what();
-  }
+  const std::string msg = image_error(dir / "huge.exr");
+  EXPECT_NE(msg.find("to decode, over the limit of 1 GiB (--max-image-memory raises it)"), std::string::npos) << msg;
   fs::remove_all(dir);
 }

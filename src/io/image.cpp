@@ -334,9 +334,8 @@ std::string printable(std::string bytes) {
 /// * zero-length IDAT chunks are removed: stb_image copies a zero-length first IDAT with memcpy
 ///   from a null buffer (undefined behaviour, found by fuzz_sky_image; they are legal PNG and
 ///   carry no image data).
-/// Other files are left alone; bytes after IEND are kept as they are (stb_image ignores them).
+/// \p data must be a PNG (is_png); bytes after IEND are kept as they are (stb_image ignores them).
 void check_png_chunks(const std::string& path, std::string& data) {
-  if (!is_png(data)) return;
   std::string out = data.substr(0, 8);
   size_t at = 8;
   while (at < data.size()) {
