@@ -5,8 +5,10 @@
 // L = kd * E * cos(theta) (Phong convention, no 1/pi), plus ambient * kd.
 #include <gtest/gtest.h>
 
+#include <atomic>
 #include <cmath>
 #include <cstring>
+#include <thread>
 #include <vector>
 
 #include "accel_test_util.h"
@@ -426,7 +428,12 @@ TEST(Render, StatsProgressAndAovs) {
   o.tile_size = 8;
   o.aovs = parse_aovs("depth, normal,prim,cost");
   std::vector<double> progress;
-  o.progress = [&progress](double f) { progress.push_back(f); };
+  std::atomic<bool> other_thread{false};  // the callback must only run on the thread that called render
+  const std::thread::id caller = std::this_thread::get_id();
+  o.progress = [&](double f) {
+    if (std::this_thread::get_id() != caller) other_thread = true;
+    else progress.push_back(f);
+  };
   RenderStats st;
   const Film f = render_whitted(s, *tracer, o, &st);
   EXPECT_EQ(st.primary_rays, 41u * 31u);
@@ -436,6 +443,7 @@ TEST(Render, StatsProgressAndAovs) {
   ASSERT_FALSE(progress.empty());
   EXPECT_DOUBLE_EQ(progress.back(), 1.0);
   for (size_t i = 1; i < progress.size(); ++i) EXPECT_GE(progress[i], progress[i - 1]);
+  EXPECT_FALSE(other_thread);
 
   ASSERT_EQ(f.depth.size(), f.color.size());
   ASSERT_EQ(f.normal.size(), f.color.size());

@@ -42,7 +42,7 @@ struct RenderOptions {
   bool shadows = true;
   int tile_size = 16;
   std::vector<Aov> aovs;
-  /// Called now and then from the rendering threads' coordinator with the fraction done.
+  /// Called now and then with the fraction done, always from the thread that called render.
   std::function<void(double)> progress;
 };
 

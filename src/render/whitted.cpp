@@ -684,22 +684,24 @@ Film render_whitted(const Scene& scene, const Tracer& tracer, const RenderOption
 
   const int threads = options.threads > 0 ? options.threads : tbb::this_task_arena::max_concurrency();
   tbb::task_arena arena(std::max(1, threads));
-  // Tiles are handed out in chunks so the calling thread can report progress between them.
-  const int chunk = std::max({1, (tiles + 31) / 32, 4 * std::max(1, threads)});
+  // One parallel loop over all tiles (no barrier between groups of tiles: a frame waits for
+  // its slowest thread once). Progress is reported by the calling thread only (the arena's
+  // slot 0) as it finishes tiles, so the callback never runs concurrently with itself.
+  std::atomic<int> done{0};
   arena.execute([&] {
-    for (int begin = 0; begin < tiles; begin += chunk) {
-      const int end = std::min(tiles, begin + chunk);
-      tbb::parallel_for(tbb::blocked_range<int>(begin, end, 1), [&](const tbb::blocked_range<int>& r) {
-        Scratch& s = scratch.local();
-        TileCounters c;
-        for (int t = r.begin(); t != r.end(); ++t) render_tile(ctx, sky, s, camera, t, c);
-        primary += c.primary;
-        secondary += c.secondary;
-        shadow += c.shadow;
-      });
-      if (options.progress) options.progress(static_cast<double>(end) / static_cast<double>(tiles));
-    }
+    tbb::parallel_for(tbb::blocked_range<int>(0, tiles, 1), [&](const tbb::blocked_range<int>& r) {
+      Scratch& s = scratch.local();
+      TileCounters c;
+      for (int t = r.begin(); t != r.end(); ++t) render_tile(ctx, sky, s, camera, t, c);
+      primary += c.primary;
+      secondary += c.secondary;
+      shadow += c.shadow;
+      const int now = done.fetch_add(static_cast<int>(r.size()), std::memory_order_relaxed) + static_cast<int>(r.size());
+      if (options.progress && tbb::this_task_arena::current_thread_index() == 0)
+        options.progress(static_cast<double>(now) / static_cast<double>(tiles));
+    });
   });
+  if (options.progress) options.progress(1.0);
 
   if (stats) {
     stats->primary_rays = primary.load();
