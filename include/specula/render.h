@@ -41,6 +41,10 @@ struct RenderOptions {
   /// "Whitted ray tracer without shadow rays"); reflections and refractions are unchanged.
   bool shadows = true;
   int tile_size = 16;
+  /// Hand the tracer each wavefront and shadow batch grouped by bounce history (and light), so
+  /// coherent rays sit side by side where a triangle tracer takes them as packets. The image is
+  /// the same bit for bit either way; false only to measure or test that.
+  bool group_coherent_rays = true;
   std::vector<Aov> aovs;
   /// Called now and then with the fraction done, always from the thread that called render.
   std::function<void(double)> progress;

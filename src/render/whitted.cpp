@@ -9,6 +9,10 @@
 // (seed 001 stores the tree and walks it backwards because GLSL has no stacks; here the
 // weights carry the same information forwards).
 //
+// Coherence: the tracer gets each wavefront and shadow batch grouped by bounce history (and
+// light), see TraceOrder, so a packet tracer finds runs of similar rays; results are scattered
+// back, and shading runs in wavefront order as before.
+//
 // Determinism: a tile is always processed by one thread in the same order, pixels are only
 // written by their tile, light samples are keyed by the pixel's global index, and there is no
 // shared random state. The film is bit-identical for any thread count.
@@ -100,8 +104,66 @@ struct PathState {
   uint32_t global;   ///< index in the film
   uint8_t reflect_depth;
   uint8_t refract_depth;
-  bool primary;
+  /// The path's bounce history (1, then a bit per bounce: 0 mirror, 1 refraction; saturates):
+  /// segments with the same history at neighbouring pixels are coherent rays (see TraceOrder).
+  uint16_t history;
   MediumStack media;
+
+  bool primary() const { return history == 1; }
+};
+
+/// Child history of \p h after a mirror (0) or refraction (1) bounce; saturates at 15 bounces.
+constexpr uint16_t next_history(uint16_t h, unsigned bit) {
+  return h >= 0x8000u ? h : static_cast<uint16_t>((h << 1) | bit);
+}
+
+/// The order in which a wavefront (or shadow batch) is handed to the tracer: grouped by a
+/// coherence key (bounce history; for shadow rays also the light), stable inside a group. The
+/// integrator builds rays in pixel order, interleaving kinds (a hit's mirror ray, then its
+/// refraction ray; its shadow rays to each light in turn), and a tracer that takes runs of
+/// consecutive similar rays as packets sees only half-coherent runs that way. Tracing in key
+/// order and scattering the results back leaves shading, and so the image, unchanged bit for
+/// bit: only the order of the tracer's independent queries changes.
+struct TraceOrder {
+  static constexpr size_t kMaxGroups = 32;  ///< keys beyond this many share the last group
+  std::vector<uint32_t> order;              ///< trace position -> wavefront index
+  uint32_t keys[kMaxGroups] = {};
+  uint32_t counts[kMaxGroups + 1] = {};
+
+  /// Fills `order` from per-ray keys; false when it would be the identity (nothing to do).
+  bool build(const std::vector<uint32_t>& key) {
+    const size_t n = key.size();
+    size_t groups = 0;
+    bool sorted = true;  // keys already non-decreasing by first appearance: identity
+    std::vector<uint8_t>& g = group_;
+    g.resize(n);
+    size_t last = 0;
+    for (size_t i = 0; i < n; ++i) {
+      size_t k = 0;
+      if (groups > 0 && keys[last] == key[i]) {
+        k = last;
+      } else {
+        while (k < groups && keys[k] != key[i]) ++k;
+        if (k == groups) {
+          if (groups < kMaxGroups) keys[groups++] = key[i];
+          else k = kMaxGroups - 1;
+        }
+        if (k < last) sorted = false;
+        last = k;
+      }
+      g[i] = static_cast<uint8_t>(k);
+    }
+    if (groups <= 1 || sorted) return false;
+    std::fill(counts, counts + groups + 1, 0u);
+    for (size_t i = 0; i < n; ++i) ++counts[g[i] + 1];
+    for (size_t k = 1; k <= groups; ++k) counts[k] += counts[k - 1];
+    order.resize(n);
+    for (size_t i = 0; i < n; ++i) order[counts[g[i]]++] = static_cast<uint32_t>(i);
+    return true;
+  }
+
+ private:
+  std::vector<uint8_t> group_;
 };
 
 /// What shading needs of a material. Computed once per render for the scene's materials
@@ -132,6 +194,13 @@ struct Scratch {
   std::vector<Vec3> accum;
   std::vector<uint64_t> cost;
   std::vector<uint32_t> skip;  ///< per ray: material of the voxel medium it is in (kNoHit: none)
+  std::vector<uint32_t> shadow_key;  ///< per shadow ray: coherence key (history, light)
+  std::vector<uint32_t> key;         ///< per wavefront ray: coherence key (history)
+  TraceOrder trace_order;
+  std::vector<Ray> sorted_rays;      ///< a batch in trace order
+  std::vector<Hit> sorted_hits;
+  std::vector<Vec3> sorted_t;
+  std::vector<uint32_t> sorted_skip;
   ShadeMaterial voxel_material;  ///< the material of the voxel hit being shaded
 };
 
@@ -207,6 +276,7 @@ struct Context {
   /// attributes), shaded with their averaged numbers over their largest triangle's material.
   const VoxelTracer* voxels = nullptr;
   bool shadows = true;  ///< false: light contributions are added without a shadow ray
+  bool group_rays = true;  ///< trace batches in TraceOrder (RenderOptions::group_coherent_rays)
   bool vertex_normals = false;  ///< the scene has one normal per vertex
   std::vector<ShadeMaterial> shade{};///< per scene material, then the fallback material
   std::vector<uint8_t> absorbing{};  ///< per scene material: some absorption coefficient > 0
@@ -260,7 +330,7 @@ SPECULA_OPAQUE float sample_rotation(uint32_t global_pixel) {
 /// shadow rays, else as shadow-ray requests carrying the radiance they would bring.
 [[gnu::always_inline]] inline void shade_lights(const Context& ctx, Scratch& s, uint32_t pixel, const Vec3& weight, const ShadeMaterial& m,
                   const Vec3& p, const Vec3& ng_f, const Vec3& ns_f, const Vec3& view_dir,
-                  uint32_t global_pixel) {
+                  uint32_t global_pixel, uint16_t history) {
   if (!m.lit) return;
   // The shadow rays' origin, computed on first use (never without shadow rays).
   Vec3 org;
@@ -288,17 +358,20 @@ SPECULA_OPAQUE float sample_rotation(uint32_t global_pixel) {
     c = weight * f * irradiance;
     return max_component(c) > 0.0f;
   };
-  const auto add = [&](const Vec3& c, const Ray& shadow) {
+  // The shadow ray's coherence key: the path's history and the light.
+  const auto add = [&](const Vec3& c, const Ray& shadow, const LightSetup& light) {
     s.shadow_rays.push_back(shadow);
     s.shadow_contrib.push_back(c);
     s.shadow_pixel.push_back(pixel);
+    const auto index = static_cast<uint32_t>(std::min<ptrdiff_t>(&light - ctx.lights.data(), 255));
+    s.shadow_key.push_back((uint32_t{history} << 8) | index);
   };
 
   for (const LightSetup& light : ctx.lights) {
     Vec3 c;
     if (light.type == LightType::Directional) {
       if (!sample(light.l, light.power, c)) continue;
-      if (ctx.shadows) add(c, Ray{origin(), 0.0f, light.l, kInf});
+      if (ctx.shadows) add(c, Ray{origin(), 0.0f, light.l, kInf}, light);
       else s.accum[pixel] += c;
       continue;
     }
@@ -307,7 +380,7 @@ SPECULA_OPAQUE float sample_rotation(uint32_t global_pixel) {
       const float d2 = dot(to, to);
       if (!(d2 > 0.0f)) continue;
       if (!sample(to * (1.0f / std::sqrt(d2)), light.power / d2, c)) continue;
-      if (ctx.shadows) add(c, Ray{origin(), 0.0f, light.position - origin(), 1.0f});
+      if (ctx.shadows) add(c, Ray{origin(), 0.0f, light.position - origin(), 1.0f}, light);
       else s.accum[pixel] += c;
       continue;
     }
@@ -326,7 +399,7 @@ SPECULA_OPAQUE float sample_rotation(uint32_t global_pixel) {
       const float d2 = dot(to, to);
       if (!(d2 > 0.0f)) continue;
       if (!sample(to * (1.0f / std::sqrt(d2)), light.power * (light.inv_n / d2), c)) continue;
-      if (ctx.shadows) add(c, Ray{origin(), 0.0f, q - origin(), 1.0f});
+      if (ctx.shadows) add(c, Ray{origin(), 0.0f, q - origin(), 1.0f}, light);
       else s.accum[pixel] += c;
     }
   }
@@ -396,7 +469,7 @@ void shade_hit(const Context& ctx, Scratch& s, const Ray& ray, const PathState& 
 
   // Local shading: emission + ambient + direct light (through the shadow batch).
   s.accum[seg.pixel] += weight * m.base;
-  shade_lights(ctx, s, seg.pixel, weight, m, p, ng_f, ns_f, d, seg.global);
+  shade_lights(ctx, s, seg.pixel, weight, m, p, ng_f, ns_f, d, seg.global, seg.history);
 
   // Mirror and dielectric split.
   float refl_w = m.refl;
@@ -436,7 +509,7 @@ void shade_hit(const Context& ctx, Scratch& s, const Ray& ray, const PathState& 
       if (dot(r, ng_f) <= 0.0f) r = reflect(d, ng_f);  // keep it above the geometric surface
       s.next_rays.push_back(Ray{offset_ray_origin(p, ng_f), 0.0f, normalize(r), kInf});
       s.next_paths.push_back(PathState{w, seg.pixel, seg.global, static_cast<uint8_t>(seg.reflect_depth + 1),
-                                       seg.refract_depth, false, seg.media});
+                                       seg.refract_depth, next_history(seg.history, 0), seg.media});
     }
   }
   if (refr_w > 0.0f && seg.refract_depth < ctx.max_refract) {
@@ -444,7 +517,8 @@ void shade_hit(const Context& ctx, Scratch& s, const Ray& ray, const PathState& 
     if (max_component(w) >= kMinWeight) {
       s.next_rays.push_back(Ray{offset_ray_origin(p, -ng_f), 0.0f, refr_dir, kInf});
       s.next_paths.push_back(PathState{w, seg.pixel, seg.global, seg.reflect_depth,
-                                       static_cast<uint8_t>(seg.refract_depth + 1), false, refr_media});
+                                       static_cast<uint8_t>(seg.refract_depth + 1), next_history(seg.history, 1),
+                                       refr_media});
     }
   }
 }
@@ -479,7 +553,7 @@ void render_tile(const Context& ctx, const SkyEval& sky, Scratch& s, const Pinho
           ps.global = static_cast<uint32_t>(y) * static_cast<uint32_t>(ctx.width) + static_cast<uint32_t>(x);
           ps.reflect_depth = 0;
           ps.refract_depth = 0;
-          ps.primary = true;
+          ps.history = 1;
         }
   counters.primary += npix;
 
@@ -498,11 +572,10 @@ void render_tile(const Context& ctx, const SkyEval& sky, Scratch& s, const Pinho
       }
       if (any) skip = s.skip;
     }
-    const auto trace = [&](size_t begin, size_t count, TraceStats* ts) {
-      const std::span<const Ray> rays(s.rays.data() + begin, count);
-      const std::span<Hit> hits(s.hits.data() + begin, count);
-      if (!skip.empty())
-        ctx.voxels->intersect_skipping(rays, skip.subspan(begin, count), hits, ts);
+    const auto trace = [&](std::span<const Ray> rays, std::span<const uint32_t> skips, std::span<Hit> hits,
+                           TraceStats* ts) {
+      if (!skips.empty())
+        ctx.voxels->intersect_skipping(rays, skips, hits, ts);
       else
         ctx.tracer.intersect(rays, hits, ts);
     };
@@ -510,11 +583,33 @@ void render_tile(const Context& ctx, const SkyEval& sky, Scratch& s, const Pinho
       // Per-ray queries so the node visits can be charged to their pixel.
       for (size_t i = 0; i < n; ++i) {
         TraceStats ts;
-        trace(i, 1, &ts);
+        trace(std::span<const Ray>(&s.rays[i], 1), skip.empty() ? skip : skip.subspan(i, 1),
+              std::span<Hit>(&s.hits[i], 1), &ts);
         s.cost[s.paths[i].pixel] += ts.nodes_visited;
       }
     } else {
-      trace(0, n, nullptr);
+      // (The primary wavefront has one history: nothing to order. Voxel tracers group their
+      // batches by direction octant themselves, which is the same grouping here.)
+      bool reorder = false;
+      if (ctx.group_rays && !s.paths.front().primary()) {
+        s.key.resize(n);
+        for (size_t i = 0; i < n; ++i) s.key[i] = s.paths[i].history;
+        reorder = s.trace_order.build(s.key);
+      }
+      if (reorder) {  // coherent rays side by side (TraceOrder)
+        const std::vector<uint32_t>& order = s.trace_order.order;
+        s.sorted_rays.resize(n);
+        s.sorted_hits.assign(n, Hit{});
+        for (size_t j = 0; j < n; ++j) s.sorted_rays[j] = s.rays[order[j]];
+        if (!skip.empty()) {
+          s.sorted_skip.resize(n);
+          for (size_t j = 0; j < n; ++j) s.sorted_skip[j] = skip[order[j]];
+        }
+        trace(s.sorted_rays, skip.empty() ? skip : std::span<const uint32_t>(s.sorted_skip), s.sorted_hits, nullptr);
+        for (size_t j = 0; j < n; ++j) s.hits[order[j]] = s.sorted_hits[j];
+      } else {
+        trace(s.rays, skip, s.hits, nullptr);
+      }
     }
 
     s.next_rays.clear();
@@ -522,6 +617,7 @@ void render_tile(const Context& ctx, const SkyEval& sky, Scratch& s, const Pinho
     s.shadow_rays.clear();
     s.shadow_contrib.clear();
     s.shadow_pixel.clear();
+    s.shadow_key.clear();
     for (size_t i = 0; i < n; ++i) {
       const Ray& ray = s.rays[i];
       const PathState& seg = s.paths[i];
@@ -532,7 +628,7 @@ void render_tile(const Context& ctx, const SkyEval& sky, Scratch& s, const Pinho
       // Beer-Lambert over the segment (a factor of exactly 1 outside absorbing media: skipped).
       if (ctx.absorbs(top)) weight *= medium_attenuation(ctx, top, valid ? hit.t * length(ray.dir) : kInf);
       const size_t gp = seg.global;
-      if (seg.primary) {
+      if (seg.primary()) {
         if (ctx.want_depth) ctx.film.depth[gp] = valid ? hit.t * length(ray.dir) : kInf;
         if (ctx.want_prim) ctx.film.prim_id[gp] = valid ? hit.prim : kNoHit;
       }
@@ -543,7 +639,7 @@ void render_tile(const Context& ctx, const SkyEval& sky, Scratch& s, const Pinho
       if (max_component(weight) <= 0.0f) continue;
       const Surface sf = ctx.voxels ? voxel_surface(ctx, ray, hit, s.voxel_material) : triangle_surface(ctx, hit);
       shade_hit(ctx, s, ray, seg, weight, sf);
-      if (seg.primary && ctx.want_normal) {
+      if (seg.primary() && ctx.want_normal) {
         Vec3 nrm = sf.ns != Vec3{} ? sf.ns : sf.ng;
         if (dot(nrm, ray.dir) > 0.0f) nrm = -nrm;  // facing the camera
         ctx.film.normal[gp] = nrm;
@@ -560,6 +656,13 @@ void render_tile(const Context& ctx, const SkyEval& sky, Scratch& s, const Pinho
                                    std::span<Vec3>(&s.shadow_t[i], 1), &ts);
           s.cost[s.shadow_pixel[i]] += ts.nodes_visited;
         }
+      } else if (ctx.group_rays && s.trace_order.build(s.shadow_key)) {  // coherent rays side by side (TraceOrder)
+        const std::vector<uint32_t>& order = s.trace_order.order;
+        s.sorted_rays.resize(ns);
+        s.sorted_t.assign(ns, Vec3{});
+        for (size_t j = 0; j < ns; ++j) s.sorted_rays[j] = s.shadow_rays[order[j]];
+        ctx.tracer.transmittance(s.sorted_rays, s.sorted_t);
+        for (size_t j = 0; j < ns; ++j) s.shadow_t[order[j]] = s.sorted_t[j];
       } else {
         ctx.tracer.transmittance(s.shadow_rays, s.shadow_t);
       }
@@ -643,6 +746,9 @@ Film render_whitted(const Scene& scene, const Tracer& tracer, const RenderOption
   ctx.max_reflect = std::clamp(options.max_reflect, 0, kMaxDepthCap);
   ctx.max_refract = std::clamp(options.max_refract, 0, kMaxDepthCap);
   ctx.shadows = options.shadows;
+  // Voxel tracers group their batches by direction octant themselves, which for Whitted's
+  // wavefronts is the same grouping: no second pass over the rays for them.
+  ctx.group_rays = options.group_coherent_rays && ctx.voxels == nullptr;
   ctx.vertex_normals = scene.normals.size() == scene.positions.size();
   // Per-render constants of the shading: materials (the fallback last) and lights.
   ctx.shade.reserve(scene.materials.size() + 1);
