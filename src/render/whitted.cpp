@@ -133,29 +133,26 @@ struct TraceOrder {
   /// Fills `order` from per-ray keys; false when it would be the identity (nothing to do).
   bool build(const std::vector<uint32_t>& key) {
     const size_t n = key.size();
-    size_t groups = 0;
-    bool sorted = true;  // keys already non-decreasing by first appearance: identity
     std::vector<uint8_t>& g = group_;
     g.resize(n);
-    size_t last = 0;
+    size_t groups = 0, last = 0;
+    bool sorted = true;  // groups met in first-appearance order, each in one run: identity
+    std::fill(counts, counts + kMaxGroups + 1, 0u);
     for (size_t i = 0; i < n; ++i) {
-      size_t k = 0;
-      if (groups > 0 && keys[last] == key[i]) {
-        k = last;
-      } else {
+      if (groups == 0 || keys[last] != key[i]) [[unlikely]] {  // a new run
+        size_t k = 0;
         while (k < groups && keys[k] != key[i]) ++k;
         if (k == groups) {
           if (groups < kMaxGroups) keys[groups++] = key[i];
           else k = kMaxGroups - 1;
         }
-        if (k < last) sorted = false;
+        sorted = sorted && k >= last;
         last = k;
       }
-      g[i] = static_cast<uint8_t>(k);
+      g[i] = static_cast<uint8_t>(last);
+      ++counts[last + 1];
     }
     if (groups <= 1 || sorted) return false;
-    std::fill(counts, counts + groups + 1, 0u);
-    for (size_t i = 0; i < n; ++i) ++counts[g[i] + 1];
     for (size_t k = 1; k <= groups; ++k) counts[k] += counts[k - 1];
     order.resize(n);
     for (size_t i = 0; i < n; ++i) order[counts[g[i]]++] = static_cast<uint32_t>(i);
