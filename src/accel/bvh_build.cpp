@@ -135,6 +135,31 @@ __attribute__((target("avx2"))) inline __m128 half_area_x3(__m256 b0, __m256 b1,
   return _mm_add_ps(_mm_add_ps(_mm_mul_ps(ex, ey), _mm_mul_ps(ey, ez)), _mm_mul_ps(ez, ex));
 }
 
+/// One bin of the AVX2 split search: its (lo, -hi) box and primitive count, 64 bytes so that a
+/// bin index scaled by 64 addresses both.
+struct alignas(64) BinRec {
+  __m256 box;
+  uint32_t count;
+  uint32_t pad[7];
+};
+static_assert(sizeof(BinRec) == 64);
+
+/// Byte offsets of a reference's bins on the three axes (lanes 0-2): the bin index of its
+/// doubled centroid, as BinParams computes it, times 64, plus the axis' offset.
+__attribute__((target("avx2"), always_inline)) inline __m128i bin_offsets(__m256 v, __m128 vmin, __m128 vscale,
+                                                                          __m128 vmaxbin, __m128i voff64) {
+  const __m128 c = _mm_add_ps(_mm256_castps256_ps128(v), _mm256_extractf128_ps(v, 1));
+  return _mm_add_epi32(
+      _mm_slli_epi32(_mm_cvttps_epi32(_mm_min_ps(_mm_mul_ps(_mm_sub_ps(c, vmin), vscale), vmaxbin)), 6), voff64);
+}
+
+/// Grows the bin at byte offset off from base by the (lo, -hi) box v.
+__attribute__((target("avx2"), always_inline)) inline void bin_update(char* base, uint32_t off, __m256 v) {
+  BinRec& r = *reinterpret_cast<BinRec*>(base + off);
+  r.box = _mm256_min_ps(r.box, v);
+  ++r.count;
+}
+
 struct Split {
   int axis = -1;
   int bin = 0;  ///< primitives with bin index < bin go left
@@ -315,71 +340,62 @@ class BvhBuilder {
     const __m256 neg_hi = _mm256_setr_ps(0.0f, 0.0f, 0.0f, 0.0f, -0.0f, -0.0f, -0.0f, -0.0f);
     const __m256 empty = _mm256_set1_ps(kInf);
 
+    // A bin is one 64-byte record (box, count), addressed by byte offset: the bin index
+    // vector is scaled to bytes before the three lanes are extracted, so each update is a
+    // min from memory, a store and an increment at the same address (no index arithmetic).
     const int sets = count >= 64 ? 2 : 1;
     const int stride = 3 * nb;
-    __m256 box[2 * 3 * kMaxBins];
-    alignas(32) uint32_t cnt[2 * 3 * kMaxBins + 8];
-    for (int i = 0; i < sets * stride; ++i) box[i] = empty;
-    // (A vector loop: the compiler's memset call costs more than the few counts of a small node.)
-    for (int i = 0; i < sets * stride; i += 8)
-      _mm256_store_si256(reinterpret_cast<__m256i*>(cnt + i), _mm256_setzero_si256());
+    BinRec rec[2 * 3 * kMaxBins];
+    for (int i = 0; i < sets * stride; ++i) rec[i].box = empty, rec[i].count = 0;
+    const __m128i voff64 = _mm_slli_epi32(voff, 6);
+    char* const base0 = reinterpret_cast<char*>(rec);
     const PrimRef* refs = refs_ + first;
     uint32_t i = 0;
     if (sets == 2) {
-      __m256* box1 = box + stride;
-      uint32_t* cnt1 = cnt + stride;
+      char* const base1 = base0 + static_cast<size_t>(stride) * sizeof(BinRec);
       for (; i + 1 < count; i += 2) {
         const __m256 v0 = _mm256_load_ps(refs[i].lo), v1 = _mm256_load_ps(refs[i + 1].lo);
-        const __m128 c0 = _mm_add_ps(_mm256_castps256_ps128(v0), _mm256_extractf128_ps(v0, 1));
-        const __m128 c1 = _mm_add_ps(_mm256_castps256_ps128(v1), _mm256_extractf128_ps(v1, 1));
-        const __m128i bi0 = _mm_add_epi32(
-            _mm_cvttps_epi32(_mm_min_ps(_mm_mul_ps(_mm_sub_ps(c0, vmin), vscale), vmaxbin)), voff);
-        const __m128i bi1 = _mm_add_epi32(
-            _mm_cvttps_epi32(_mm_min_ps(_mm_mul_ps(_mm_sub_ps(c1, vmin), vscale), vmaxbin)), voff);
+        const __m128i o0 = bin_offsets(v0, vmin, vscale, vmaxbin, voff64),
+                      o1 = bin_offsets(v1, vmin, vscale, vmaxbin, voff64);
         const __m256 n0 = _mm256_xor_ps(v0, neg_hi), n1 = _mm256_xor_ps(v1, neg_hi);
-        const uint32_t a0 = static_cast<uint32_t>(_mm_cvtsi128_si32(bi0)), a1 = static_cast<uint32_t>(_mm_extract_epi32(bi0, 1)),
-                       a2 = static_cast<uint32_t>(_mm_extract_epi32(bi0, 2));
-        const uint32_t b0 = static_cast<uint32_t>(_mm_cvtsi128_si32(bi1)), b1 = static_cast<uint32_t>(_mm_extract_epi32(bi1, 1)),
-                       b2 = static_cast<uint32_t>(_mm_extract_epi32(bi1, 2));
-        box[a0] = _mm256_min_ps(box[a0], n0), ++cnt[a0];
-        box1[b0] = _mm256_min_ps(box1[b0], n1), ++cnt1[b0];
-        box[a1] = _mm256_min_ps(box[a1], n0), ++cnt[a1];
-        box1[b1] = _mm256_min_ps(box1[b1], n1), ++cnt1[b1];
-        box[a2] = _mm256_min_ps(box[a2], n0), ++cnt[a2];
-        box1[b2] = _mm256_min_ps(box1[b2], n1), ++cnt1[b2];
+        bin_update(base0, static_cast<uint32_t>(_mm_cvtsi128_si32(o0)), n0);
+        bin_update(base1, static_cast<uint32_t>(_mm_cvtsi128_si32(o1)), n1);
+        bin_update(base0, static_cast<uint32_t>(_mm_extract_epi32(o0, 1)), n0);
+        bin_update(base1, static_cast<uint32_t>(_mm_extract_epi32(o1, 1)), n1);
+        bin_update(base0, static_cast<uint32_t>(_mm_extract_epi32(o0, 2)), n0);
+        bin_update(base1, static_cast<uint32_t>(_mm_extract_epi32(o1, 2)), n1);
       }
-      for (int k = 0; k < stride; ++k) box[k] = _mm256_min_ps(box[k], box1[k]), cnt[k] += cnt1[k];
+      for (int k = 0; k < stride; ++k)
+        rec[k].box = _mm256_min_ps(rec[k].box, rec[stride + k].box), rec[k].count += rec[stride + k].count;
     }
     for (; i < count; ++i) {
       const __m256 v = _mm256_load_ps(refs[i].lo);
-      const __m128 c = _mm_add_ps(_mm256_castps256_ps128(v), _mm256_extractf128_ps(v, 1));
-      const __m128i bi = _mm_add_epi32(
-          _mm_cvttps_epi32(_mm_min_ps(_mm_mul_ps(_mm_sub_ps(c, vmin), vscale), vmaxbin)), voff);
+      const __m128i o = bin_offsets(v, vmin, vscale, vmaxbin, voff64);
       const __m256 nv = _mm256_xor_ps(v, neg_hi);
-      const uint32_t a0 = static_cast<uint32_t>(_mm_cvtsi128_si32(bi)), a1 = static_cast<uint32_t>(_mm_extract_epi32(bi, 1)),
-                     a2 = static_cast<uint32_t>(_mm_extract_epi32(bi, 2));
-      box[a0] = _mm256_min_ps(box[a0], nv), ++cnt[a0];
-      box[a1] = _mm256_min_ps(box[a1], nv), ++cnt[a1];
-      box[a2] = _mm256_min_ps(box[a2], nv), ++cnt[a2];
+      bin_update(base0, static_cast<uint32_t>(_mm_cvtsi128_si32(o)), nv);
+      bin_update(base0, static_cast<uint32_t>(_mm_extract_epi32(o, 1)), nv);
+      bin_update(base0, static_cast<uint32_t>(_mm_extract_epi32(o, 2)), nv);
     }
 
     // Sweeps of the three axes at once, lane a = axis a. Half areas from (lo, -hi): lo + (-hi)
     // is exactly -(hi - lo), the products of two negated extents are the products of the
     // extents, and the sums run in half_area4's order, so every cost has find_split's bits.
     __m128i cntv[kMaxBins];
-    for (int k = 0; k < nb; ++k) cntv[k] = _mm_setr_epi32(static_cast<int>(cnt[k]), static_cast<int>(cnt[nb + k]),
-                                                           static_cast<int>(cnt[2 * nb + k]), 0);
+    for (int k = 0; k < nb; ++k)
+      cntv[k] = _mm_setr_epi32(static_cast<int>(rec[k].count), static_cast<int>(rec[nb + k].count),
+                               static_cast<int>(rec[2 * nb + k].count), 0);
     const __m128 vinf = _mm_set1_ps(kInf);
     const __m128i three = _mm_set1_epi32(3), zero = _mm_setzero_si128();
-    const __m256* b0 = box;
-    const __m256* b1 = box + nb;
-    const __m256* b2 = box + 2 * nb;
+    const BinRec* b0 = rec;
+    const BinRec* b1 = rec + nb;
+    const BinRec* b2 = rec + 2 * nb;
     __m128 rcost[kMaxBins];
     {
       __m256 acc0 = empty, acc1 = empty, acc2 = empty;
       __m128i n = zero;
       for (int k = nb - 1; k > 0; --k) {
-        acc0 = _mm256_min_ps(acc0, b0[k]), acc1 = _mm256_min_ps(acc1, b1[k]), acc2 = _mm256_min_ps(acc2, b2[k]);
+        acc0 = _mm256_min_ps(acc0, b0[k].box), acc1 = _mm256_min_ps(acc1, b1[k].box),
+        acc2 = _mm256_min_ps(acc2, b2[k].box);
         n = _mm_add_epi32(n, cntv[k]);
         const __m128 area = half_area_x3(acc0, acc1, acc2);
         const __m128 blk = _mm_cvtepi32_ps(_mm_srli_epi32(_mm_add_epi32(n, three), 2));
@@ -392,8 +408,8 @@ class BvhBuilder {
       __m256 acc0 = empty, acc1 = empty, acc2 = empty;
       __m128i n = zero;
       for (int k = 1; k < nb; ++k) {
-        acc0 = _mm256_min_ps(acc0, b0[k - 1]), acc1 = _mm256_min_ps(acc1, b1[k - 1]),
-        acc2 = _mm256_min_ps(acc2, b2[k - 1]);
+        acc0 = _mm256_min_ps(acc0, b0[k - 1].box), acc1 = _mm256_min_ps(acc1, b1[k - 1].box),
+        acc2 = _mm256_min_ps(acc2, b2[k - 1].box);
         n = _mm_add_epi32(n, cntv[k - 1]);
         const __m128 area = half_area_x3(acc0, acc1, acc2);
         const __m128 blk = _mm_cvtepi32_ps(_mm_srli_epi32(_mm_add_epi32(n, three), 2));
@@ -417,11 +433,10 @@ class BvhBuilder {
       best.cost = best_cost;
       best.axis = best_axis;
       best.bin = best_bin;
-      const __m256* bx = box + best_axis * nb;
-      const uint32_t* cn = cnt + best_axis * nb;
+      const BinRec* bx = rec + best_axis * nb;
       __m256 l = empty, r = empty;
-      for (int k = 0; k < best_bin; ++k) l = _mm256_min_ps(l, bx[k]), best.left_count += cn[k];
-      for (int k = best_bin; k < nb; ++k) r = _mm256_min_ps(r, bx[k]);
+      for (int k = 0; k < best_bin; ++k) l = _mm256_min_ps(l, bx[k].box), best.left_count += bx[k].count;
+      for (int k = best_bin; k < nb; ++k) r = _mm256_min_ps(r, bx[k].box);
       l = _mm256_xor_ps(l, neg_hi), r = _mm256_xor_ps(r, neg_hi);
       best.left.lo = _mm256_castps256_ps128(l), best.left.hi = _mm256_extractf128_ps(l, 1);
       best.right.lo = _mm256_castps256_ps128(r), best.right.hi = _mm256_extractf128_ps(r, 1);
