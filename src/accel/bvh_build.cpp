@@ -673,6 +673,15 @@ Bvh Bvh::build(const TriangleInput& input, const BvhOptions& options, BuildInfo*
     // compact (serial pass): references are written packed at refs[*compact] and the degenerate
     // flags are not needed; otherwise at refs[i], compacted afterwards.
     const auto make_refs = [&](uint32_t begin, uint32_t end, RootBounds& rb, uint32_t* compact) {
+      // All in SSE2, computing exactly the floats of accel::is_degenerate and of Vec3 min/max
+      // (std::min(x, y) is _mm_min_ps(y, x), std::max(x, y) is _mm_max_ps(y, x)).
+      static_assert(sizeof(Vec3) == 3 * sizeof(float));
+      const __m128 xyz = _mm_castsi128_ps(_mm_setr_epi32(-1, -1, -1, 0));
+      const auto load = [&](uint32_t v) {
+        const Vec3& p = input.positions[v];
+        // A 16-byte load reads the next vertex's x too (lane 3, masked off); not the last.
+        return v + 1 < vcount ? _mm_and_ps(_mm_loadu_ps(&p.x), xyz) : _mm_setr_ps(p.x, p.y, p.z, 0.0f);
+      };
       for (uint32_t i = begin; i < end; ++i) {
         const uint32_t i0 = input.indices[3 * size_t{i}], i1 = input.indices[3 * size_t{i} + 1],
                        i2 = input.indices[3 * size_t{i} + 2];
@@ -681,20 +690,27 @@ Bvh Bvh::build(const TriangleInput& input, const BvhOptions& options, BuildInfo*
           if (!compact) degenerate[i] = 1;
           continue;
         }
-        const Vec3& a = input.positions[i0];
-        const Vec3& b = input.positions[i1];
-        const Vec3& c = input.positions[i2];
-        const bool degen = accel::is_degenerate(a, b, c);
+        const __m128 a = load(i0), b = load(i1), c = load(i2);
+        // cross(b - a, c - a) lane by lane, then dot(n, n) summed as (x + y) + z.
+        const __m128 e1 = _mm_sub_ps(b, a), e2 = _mm_sub_ps(c, a);
+        const __m128 nrm = _mm_sub_ps(
+            _mm_mul_ps(_mm_shuffle_ps(e1, e1, _MM_SHUFFLE(3, 0, 2, 1)), _mm_shuffle_ps(e2, e2, _MM_SHUFFLE(3, 1, 0, 2))),
+            _mm_mul_ps(_mm_shuffle_ps(e1, e1, _MM_SHUFFLE(3, 1, 0, 2)), _mm_shuffle_ps(e2, e2, _MM_SHUFFLE(3, 0, 2, 1))));
+        const __m128 sq = _mm_mul_ps(nrm, nrm);
+        const float d = _mm_cvtss_f32(_mm_add_ss(_mm_add_ss(sq, _mm_shuffle_ps(sq, sq, _MM_SHUFFLE(1, 1, 1, 1))),
+                                                 _mm_movehl_ps(sq, sq)));
+        const bool degen = !(d > 0.0f && d < kInf);
         if (!compact) degenerate[i] = degen ? 1 : 0;
         if (degen) {
-          if (!is_finite(a) || !is_finite(b) || !is_finite(c)) invalid.store(true, std::memory_order_relaxed);
+          const Vec3 &pa = input.positions[i0], &pb = input.positions[i1], &pc = input.positions[i2];
+          if (!is_finite(pa) || !is_finite(pb) || !is_finite(pc)) invalid.store(true, std::memory_order_relaxed);
           continue;
         }
-        const Vec3 lo = min(a, min(b, c)), hi = max(a, max(b, c));
         PrimRef& r = refs[compact ? (*compact)++ : i];
-        // Built in registers and stored whole (reloading scalar stores as vectors stalls).
-        const __m128 l4 = _mm_setr_ps(lo.x, lo.y, lo.z, std::bit_cast<float>(i));
-        const __m128 h4 = _mm_setr_ps(hi.x, hi.y, hi.z, 0.0f);
+        // Lane 3: the index bits in lo, 0 in hi.
+        const __m128 l4 = _mm_or_ps(_mm_min_ps(_mm_min_ps(c, b), a),
+                                    _mm_castsi128_ps(_mm_setr_epi32(0, 0, 0, static_cast<int>(i))));
+        const __m128 h4 = _mm_max_ps(_mm_max_ps(c, b), a);
         _mm_store_ps(r.lo, l4);
         _mm_store_ps(r.hi, h4);
         rb.box.grow(l4, h4);
