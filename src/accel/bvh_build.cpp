@@ -473,10 +473,11 @@ class BvhBuilder {
     const __m256 empty = _mm256_set1_ps(kInf);
     __m256 lb = _mm256_xor_ps(_mm256_setr_m128(lcb.lo, lcb.hi), neg_hi);
     __m256 rb = _mm256_xor_ps(_mm256_setr_m128(rcb.lo, rcb.hi), neg_hi);
-    PrimRef* refs = refs_;
-    uint32_t i = first;
-    for (uint32_t k = first; k < first + count; ++k) {
-      const __m256 v = _mm256_load_ps(refs[k].lo);
+    // Pointers rather than indices: the left end advances by 0 or 1 element, no index scaling.
+    PrimRef* left = refs_ + first;
+    PrimRef* const end = left + count;
+    for (PrimRef* k = left; k != end; ++k) {
+      const __m256 v = _mm256_load_ps(k->lo);
       const __m128 c = _mm_add_ps(_mm256_castps256_ps128(v), _mm256_extractf128_ps(v, 1));
       const __m128 lt = _mm_cmplt_ps(_mm_mul_ps(_mm_sub_ps(c, vmin), vscale), vbin);
       const __m128 m = _mm_permute_ps(lt, _MM_SHUFFLE(Axis, Axis, Axis, Axis));
@@ -484,10 +485,11 @@ class BvhBuilder {
       const __m256 cc = _mm256_xor_ps(_mm256_setr_m128(c, c), neg_hi);  // (c, -c)
       lb = _mm256_min_ps(lb, _mm256_blendv_ps(empty, cc, m8));
       rb = _mm256_min_ps(rb, _mm256_blendv_ps(cc, empty, m8));
-      _mm256_store_ps(refs[k].lo, _mm256_load_ps(refs[i].lo));
-      _mm256_store_ps(refs[i].lo, v);
-      i += static_cast<uint32_t>(_mm_movemask_ps(m)) & 1u;
+      _mm256_store_ps(k->lo, _mm256_load_ps(left->lo));
+      _mm256_store_ps(left->lo, v);
+      left += _mm_movemask_ps(m) & 1;
     }
+    const uint32_t i = static_cast<uint32_t>(left - refs_);
     lb = _mm256_xor_ps(lb, neg_hi), rb = _mm256_xor_ps(rb, neg_hi);
     lcb.lo = _mm256_castps256_ps128(lb), lcb.hi = _mm256_extractf128_ps(lb, 1);
     rcb.lo = _mm256_castps256_ps128(rb), rcb.hi = _mm256_extractf128_ps(rb, 1);
