@@ -350,6 +350,7 @@ class BvhBuilder {
     const int sets = count >= 64 ? 2 : 1;
     const int stride = 3 * nb;
     BinRec rec[2 * 3 * kMaxBins];
+#pragma GCC unroll 2
     for (int i = 0; i < sets * stride; ++i) rec[i].box = empty, rec[i].count = 0;
     const __m128i voff64 = _mm_slli_epi32(voff, 6);
     char* const base0 = reinterpret_cast<char*>(rec);
@@ -684,6 +685,7 @@ Bvh Bvh::build(const TriangleInput& input, const BvhOptions& options, BuildInfo*
         // A 16-byte load reads the next vertex's x too (lane 3, masked off); not the last.
         return v + 1 < vcount ? _mm_and_ps(_mm_loadu_ps(&p.x), xyz) : _mm_setr_ps(p.x, p.y, p.z, 0.0f);
       };
+      Box4 box, cbox;  // in registers for the loop; rb is behind a reference
       for (uint32_t i = begin; i < end; ++i) {
         const uint32_t i0 = input.indices[3 * size_t{i}], i1 = input.indices[3 * size_t{i} + 1],
                        i2 = input.indices[3 * size_t{i} + 2];
@@ -715,10 +717,12 @@ Bvh Bvh::build(const TriangleInput& input, const BvhOptions& options, BuildInfo*
         const __m128 h4 = _mm_max_ps(_mm_max_ps(c, b), a);
         _mm_store_ps(r.lo, l4);
         _mm_store_ps(r.hi, h4);
-        rb.box.grow(l4, h4);
+        box.grow(l4, h4);
         const __m128 c4 = _mm_add_ps(l4, h4);
-        rb.cbox.grow(c4, c4);
+        cbox.grow(c4, c4);
       }
+      rb.box.grow(box);
+      rb.cbox.grow(cbox);
     };
     RootBounds root;
     uint32_t valid = 0;
