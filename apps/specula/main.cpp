@@ -110,7 +110,7 @@ void add_data_option(CLI::App* app, LoadOptions& load) {
 }
 
 void add_bvh_options(CLI::App* app, BvhOptions& bvh) {
-  app->add_option("--bins", bvh.bins, "SAH bins per axis for the BVH build")
+  app->add_option("--bins", bvh.bins, "most SAH bins per axis for the BVH build (a node of n triangles uses 4 + n/20)")
       ->check(CLI::Range(2, 256))
       ->capture_default_str();
   app->add_option("--max-leaf", bvh.max_leaf_size, "largest BVH leaf (triangles)")
