@@ -90,10 +90,16 @@ VoxelAttributes average_children(const VoxelAttributes* const* attrs, const uint
   return out;
 }
 
+/// validate_set's test of one voxel's attributes (every float finite, contour_lo <= contour_hi),
+/// branch-free on the bits: exponent all ones = infinity or NaN.
 bool finite_attrs(const VoxelAttributes& a) {
-  return is_finite(a.normal) && is_finite(a.colour) && std::isfinite(a.reflectivity) && std::isfinite(a.transparency) &&
-         std::isfinite(a.ior) && std::isfinite(a.contour_lo) && std::isfinite(a.contour_hi) &&
-         a.contour_lo <= a.contour_hi;
+  const float f[9] = {a.normal.x,     a.normal.y,       a.normal.z, a.colour.x,    a.colour.y,
+                      a.colour.z,     a.reflectivity,   a.transparency, a.ior};
+  uint32_t bad = 0;
+  for (const float x : f) bad |= static_cast<uint32_t>((std::bit_cast<uint32_t>(x) & 0x7F800000u) == 0x7F800000u);
+  for (const float x : {a.contour_lo, a.contour_hi})
+    bad |= static_cast<uint32_t>((std::bit_cast<uint32_t>(x) & 0x7F800000u) == 0x7F800000u);
+  return bad == 0 && a.contour_lo <= a.contour_hi;
 }
 
 /// What the parallel checks found invalid: voxel::validate_set() on a copy then throws its exact
@@ -283,8 +289,8 @@ SparseVoxelOctree SparseVoxelOctree::build_from(const VoxelSet& set, std::vector
     int slots[8];
     int m = 0;
     uint32_t total = 0;
-    for (int s = 0; s < 8; ++s) {
-      if (!((node.mask >> s) & 1u)) continue;
+    for (uint32_t bits = node.mask; bits != 0; bits &= bits - 1) {
+      const int s = std::countr_zero(bits);
       const uint32_t c = node.first_child + static_cast<uint32_t>(m);
       attrs[m] = leaf_children ? &leaves[c] : &inner[c];
       weights[m] = leaf_children ? 1u : counts[c];
