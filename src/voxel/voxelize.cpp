@@ -247,20 +247,31 @@ struct PerVoxelBytes {
   static constexpr double attrs = sizeof(VoxelAttributes);
 };
 
-/// Upper bound of the number of voxels of side 1 that a triangle with vertices \p a, \p b, \p c
-/// (in voxel units) can touch: the smaller of its bounding-box voxel count (closed boxes: a
+/// Upper bound of the number of voxels that a triangle with lattice vertices \p l can touch in a
+/// grid of \p res voxels per axis of 2^shift lattice units each (\p scale = 2^-shift: voxel
+/// units per lattice unit): the smaller of its bounding-box voxel count (closed boxes: a
 /// range [lo, hi] touches floor(hi) - ceil(lo) + 2 voxels at most) and the volume of the
 /// triangle grown by a voxel diagonal r = sqrt(3) (Steiner: 2 r A + pi r^2 P / 2 + 4/3 pi r^3),
 /// which contains every voxel the triangle touches.
-double touched_bound(const double a[3], const double b[3], const double c[3], double res) {
+double touched_bound(const int64_t (&l)[3][3], int shift, double scale, double res) {
+  // The box on the lattice integers: lo / 2^shift has the same ceil and floor as the double
+  // lo * scale (scale = 2^-shift, exact), so this is the double formula without rounding.
+  const int64_t cells = static_cast<int64_t>(res);
   double box = 1.0;
   for (int k = 0; k < 3; ++k) {
-    const double lo = std::min({a[k], b[k], c[k]}), hi = std::max({a[k], b[k], c[k]});
-    const double first = std::max(0.0, std::ceil(lo) - 1.0), last = std::min(res - 1.0, std::floor(hi));
-    box *= std::max(1.0, last - first + 1.0);
+    const int64_t lo = std::min({l[0][k], l[1][k], l[2][k]}), hi = std::max({l[0][k], l[1][k], l[2][k]});
+    const int64_t first = std::max<int64_t>(0, ((lo + (int64_t{1} << shift) - 1) >> shift) - 1);
+    const int64_t last = std::min<int64_t>(cells - 1, hi >> shift);
+    box *= static_cast<double>(std::max<int64_t>(1, last - first + 1));
   }
   // The Steiner volume is at least 4/3 pi r^3 > 21.7: small boxes need no square roots.
   if (box <= 21.0) return box;
+  double a[3], b[3], c[3];
+  for (int k = 0; k < 3; ++k) {
+    a[k] = static_cast<double>(l[0][k]) * scale;
+    b[k] = static_cast<double>(l[1][k]) * scale;
+    c[k] = static_cast<double>(l[2][k]) * scale;
+  }
   const double e0[3] = {b[0] - a[0], b[1] - a[1], b[2] - a[2]};
   const double e1[3] = {c[0] - a[0], c[1] - a[1], c[2] - a[2]};
   const double e2[3] = {c[0] - b[0], c[1] - b[1], c[2] - b[2]};
@@ -324,14 +335,8 @@ Estimate estimate(const VoxelizeInput& in, const std::vector<LatticePoint>& lat,
       [&](const tbb::blocked_range<size_t>& r, Sums acc) {
         for (size_t t = r.begin(); t < r.end(); ++t) {
           const LatticeTri l(in, lat, t);
-          double v[3][3], vb[3][3];
-          for (int k = 0; k < 3; ++k)
-            for (int j = 0; j < 3; ++j) {
-              v[k][j] = static_cast<double>(l.v[k][j]) * to_leaf;
-              vb[k][j] = static_cast<double>(l.v[k][j]) * to_brick;
-            }
-          acc.pairs += touched_bound(v[0], v[1], v[2], leaf_res);
-          acc.brick_pairs += touched_bound(vb[0], vb[1], vb[2], brick_res);
+          acc.pairs += touched_bound(l.v, kLatticeBits - o.depth, to_leaf, leaf_res);
+          acc.brick_pairs += touched_bound(l.v, kLatticeBits - c.brick_level, to_brick, brick_res);
         }
         return acc;
       },
@@ -656,7 +661,8 @@ void process_brick(const Context& cx, uint64_t brick, const BinEntry* first, con
   // Records the pair (voxel, current triangle): the voxel's slot, and with attributes the
   // area-weighted sums (in triangle order, as each voxel meets a triangle at most once) and
   // the part's vertices for the contours.
-  auto accept = [&](uint32_t X, uint32_t Y, uint32_t Z) {
+  // \p part: the pair's Cell (looked up when null; only read with attributes).
+  auto accept = [&](uint32_t X, uint32_t Y, uint32_t Z, const Cell* part = nullptr) {
     ++s.counters.pairs;
     const uint32_t lcode = kSpread5[X & bmask] | kSpread5[Y & bmask] << 1 | kSpread5[Z & bmask] << 2;
     uint32_t slot = s.slot_of[lcode];
@@ -667,7 +673,7 @@ void process_brick(const Context& cx, uint64_t brick, const BinEntry* first, con
       if (attrs) s.slots.emplace_back();
     }
     if (!attrs) return;
-    const Cell& cell = cell_of(X, Y, Z);
+    const Cell& cell = part ? *part : cell_of(X, Y, Z);
     const float area = cell.area;
     const Vec3& nrm = cur_normal;
     const TriangleAttributes& a = *cur_attrs;
@@ -776,13 +782,14 @@ void process_brick(const Context& cx, uint64_t brick, const BinEntry* first, con
     }
     auto try_voxel = [&](uint32_t x, uint32_t y, uint32_t z) {
       ++s.counters.aabb;
-      if (clip_shortcut && cell_of(x, y, z).inside) {
+      const Cell* part = attrs ? &cell_of(x, y, z) : nullptr;
+      if (clip_shortcut && part != nullptr && part->inside) {
         ++s.counters.clip;
-        accept(x, y, z);
+        accept(x, y, z, part);
         return;
       }
       const LatticeBox box{{static_cast<int64_t>(x) << F, static_cast<int64_t>(y) << F, static_cast<int64_t>(z) << F}, S};
-      if (cx.tests.pass(t, box, true, s.counters)) accept(x, y, z);
+      if (cx.tests.pass(t, box, true, s.counters)) accept(x, y, z, part);
     };
     if (!plane_cut || (t.n[0] == 0 && t.n[1] == 0 && t.n[2] == 0)) {
       for (uint32_t z = r0[2]; z <= r1[2]; ++z)
