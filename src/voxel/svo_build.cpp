@@ -14,6 +14,8 @@
 #include <array>
 #include <bit>
 #include <cmath>
+#include <cstddef>
+#include <cstring>
 #include <memory>
 #include <string>
 #include <vector>
@@ -91,15 +93,15 @@ VoxelAttributes average_children(const VoxelAttributes* const* attrs, const uint
 }
 
 /// validate_set's test of one voxel's attributes (every float finite, contour_lo <= contour_hi),
-/// branch-free on the bits: exponent all ones = infinity or NaN.
+/// branch-free: x - x is 0 for a finite x and NaN for an infinity or a NaN.
 bool finite_attrs(const VoxelAttributes& a) {
-  const float f[9] = {a.normal.x,     a.normal.y,       a.normal.z, a.colour.x,    a.colour.y,
-                      a.colour.z,     a.reflectivity,   a.transparency, a.ior};
-  uint32_t bad = 0;
-  for (const float x : f) bad |= static_cast<uint32_t>((std::bit_cast<uint32_t>(x) & 0x7F800000u) == 0x7F800000u);
-  for (const float x : {a.contour_lo, a.contour_hi})
-    bad |= static_cast<uint32_t>((std::bit_cast<uint32_t>(x) & 0x7F800000u) == 0x7F800000u);
-  return bad == 0 && a.contour_lo <= a.contour_hi;
+  static_assert(sizeof(VoxelAttributes) == 48 && offsetof(VoxelAttributes, material) == 44);
+  typedef float Float4 __attribute__((vector_size(16)));
+  Float4 v[3];
+  std::memcpy(static_cast<void*>(v), &a, sizeof v);
+  v[2][3] = 0.0f;  // the material id: not a float
+  const Float4 z = (v[0] - v[0]) + (v[1] - v[1]) + (v[2] - v[2]);
+  return z[0] == 0.0f && z[1] == 0.0f && z[2] == 0.0f && z[3] == 0.0f && a.contour_lo <= a.contour_hi;
 }
 
 /// What the parallel checks found invalid: voxel::validate_set() on a copy then throws its exact
@@ -140,7 +142,12 @@ SparseVoxelOctree SparseVoxelOctree::build(VoxelSet&& set, const VoxelTracerOpti
   const Timer timer;
   std::vector<VoxelAttributes> attrs;
   if (!set.attrs.empty() && set.attrs.size() == set.codes.size()) attrs.swap(set.attrs);  // checked in build_from
-  return build_from(set, attrs.empty() ? nullptr : &attrs, options, info, timer);
+  try {
+    return build_from(set, attrs.empty() ? nullptr : &attrs, options, info, timer);
+  } catch (...) {
+    if (set.attrs.empty()) set.attrs.swap(attrs);  // an invalid set is left as it was given
+    throw;
+  }
 }
 
 SparseVoxelOctree SparseVoxelOctree::build_from(const VoxelSet& set, std::vector<VoxelAttributes>* steal,
@@ -321,8 +328,12 @@ SparseVoxelOctree SparseVoxelOctree::build_from(const VoxelSet& set, std::vector
     }
     for (int l = depth - 1; l >= k; --l) close(open[static_cast<size_t>(l)], l);
   });
-  for (const Chunk& ch : chunks)
-    if (ch.bad_attrs) reject(set, &svo.leaf_attrs_);
+  for (const Chunk& ch : chunks) {
+    if (!ch.bad_attrs) continue;
+    if (!steal) reject(set, nullptr);
+    *steal = std::move(svo.leaf_attrs_);  // back to the caller (build(VoxelSet&&) restores the set)
+    reject(set, steal);
+  }
 
   // Levels k-1..0: nodes, then their averages bottom-up.
   for (int l = 0; l < k; ++l) {

@@ -860,8 +860,9 @@ void process_brick(const Context& cx, uint64_t brick, const BinEntry* first, con
     s.bits[wi] = 0;
   }
   const uint64_t high = brick << (3 * bb);
-  out.codes.resize(nv);
-  for (size_t i = 0; i < nv; ++i) out.codes[i] = high | sorted[i];
+  // reserve + push_back: each output element written once (no value-initialising resize).
+  out.codes.reserve(nv);
+  for (size_t i = 0; i < nv; ++i) out.codes.push_back(high | sorted[i]);
 
   if (attrs) {
     // Voxels the triangles only touch (every part has zero area): unweighted sums instead, in
@@ -910,10 +911,10 @@ void process_brick(const Context& cx, uint64_t brick, const BinEntry* first, con
       sl.verts += p.vcount;
     }
     const double side = static_cast<double>(cx.chk.grid.voxel_size());
-    out.attrs.resize(nv);
+    out.attrs.reserve(nv);
     for (size_t i = 0; i < nv; ++i) {
       const Slot& sl = s.slots[s.slot_of[sorted[i]]];
-      VoxelAttributes& a = out.attrs[i];
+      VoxelAttributes a;
       const bool weighted = sl.w > 0.0;
       const double inv = 1.0 / (weighted ? sl.w : static_cast<double>(sl.count));
       const double* col = sl.col;
@@ -933,6 +934,7 @@ void process_brick(const Context& cx, uint64_t brick, const BinEntry* first, con
       }
       a.contour_lo = static_cast<float>(lo * side);
       a.contour_hi = static_cast<float>(hi * side);
+      out.attrs.push_back(a);
     }
   }
   for (uint32_t code : order) s.slot_of[code] = kNoSlot;
