@@ -101,7 +101,7 @@ bool finite_attrs(const VoxelAttributes& a) {
   std::memcpy(static_cast<void*>(v), &a, sizeof v);
   v[2][3] = 0.0f;  // the material id: not a float
   const Float4 z = (v[0] - v[0]) + (v[1] - v[1]) + (v[2] - v[2]);
-  return z[0] == 0.0f && z[1] == 0.0f && z[2] == 0.0f && z[3] == 0.0f && a.contour_lo <= a.contour_hi;
+  return (z[0] + z[1]) + (z[2] + z[3]) == 0.0f && a.contour_lo <= a.contour_hi;
 }
 
 /// What the parallel checks found invalid: voxel::validate_set() on a copy then throws its exact
@@ -311,22 +311,39 @@ SparseVoxelOctree SparseVoxelOctree::build_from(const VoxelSet& set, std::vector
 
   // Pass 2: nodes of levels k..depth-1 in voxel order, each averaged when its last child is done.
   for_chunks([&](Chunk& ch) {
-    std::array<uint32_t, kMaxVoxelDepth + 1> next = ch.first, open{};
+    // The open node of each level, and its child mask so far (stored when it closes).
+    std::array<uint32_t, kMaxVoxelDepth + 1> next = ch.first, open{}, mask{};
+    const size_t last = static_cast<size_t>(depth) - 1;
+    bool bad = false;
     for (size_t i = ch.begin; i < ch.end; ++i) {
       const uint64_t c = codes[i];
       const int L = i == ch.begin ? k : split_level(c, codes[i - 1], depth, k);
-      if (i > ch.begin)
-        for (int l = depth - 1; l >= L; --l) close(open[static_cast<size_t>(l)], l);
-      for (int l = L; l < depth; ++l) {
-        const uint32_t idx = next[static_cast<size_t>(l)]++;
-        open[static_cast<size_t>(l)] = idx;
-        nodes[idx] = SvoNode{l == depth - 1 ? static_cast<uint32_t>(i) : next[static_cast<size_t>(l) + 1], 0u};
+      if (L < depth) {
+        if (i > ch.begin)
+          for (int l = depth - 1; l >= L; --l) {
+            const auto ul = static_cast<size_t>(l);
+            nodes[open[ul]].mask = mask[ul];
+            close(open[ul], l);
+          }
+        for (int l = L; l < depth; ++l) {
+          const auto ul = static_cast<size_t>(l);
+          const uint32_t idx = next[ul]++;
+          open[ul] = idx;
+          mask[ul] = 0;
+          nodes[idx].first_child = ul == last ? static_cast<uint32_t>(i) : next[ul + 1];
+        }
+        for (int l = std::max(L - 1, k); l < depth - 1; ++l)
+          mask[static_cast<size_t>(l)] |= 1u << ((c >> (3 * (depth - 1 - l))) & 7u);
       }
-      for (int l = std::max(L - 1, k); l < depth; ++l)
-        nodes[open[static_cast<size_t>(l)]].mask |= 1u << ((c >> (3 * (depth - 1 - l))) & 7u);
-      if (!finite_attrs(leaves[i])) ch.bad_attrs = true;
+      mask[last] |= 1u << (c & 7u);
+      bad |= !finite_attrs(leaves[i]);
     }
-    for (int l = depth - 1; l >= k; --l) close(open[static_cast<size_t>(l)], l);
+    for (int l = depth - 1; l >= k; --l) {
+      const auto ul = static_cast<size_t>(l);
+      nodes[open[ul]].mask = mask[ul];
+      close(open[ul], l);
+    }
+    ch.bad_attrs = bad;
   });
   for (const Chunk& ch : chunks) {
     if (!ch.bad_attrs) continue;
