@@ -30,7 +30,10 @@ namespace specula {
 namespace {
 
 /// Averaged attributes of one inner node from its children (weights = voxel counts).
-/// \p child_half is the children's half side in world units.
+/// \p child_half is the children's half side in world units. kUnitWeights: every weight is 1
+/// (the children are voxels), so the products by the weights are left out (x * 1.0f == x:
+/// the same result, bit for bit).
+template <bool kUnitWeights>
 VoxelAttributes average_children(const VoxelAttributes* const* attrs, const uint32_t* weights, const int* slots, int n,
                                  float child_half) {
   VoxelAttributes out;
@@ -38,15 +41,24 @@ VoxelAttributes average_children(const VoxelAttributes* const* attrs, const uint
   float refl = 0.0f, transp = 0.0f, ior = 0.0f, wsum = 0.0f;
   int heaviest = 0;
   for (int i = 0; i < n; ++i) {
-    const float w = static_cast<float>(weights[i]);
     const VoxelAttributes& a = *attrs[i];
-    nsum += a.normal * w;
-    csum += a.colour * w;
-    refl += a.reflectivity * w;
-    transp += a.transparency * w;
-    ior += a.ior * w;
-    wsum += w;
-    if (weights[i] > weights[heaviest]) heaviest = i;
+    if constexpr (kUnitWeights) {
+      nsum += a.normal;
+      csum += a.colour;
+      refl += a.reflectivity;
+      transp += a.transparency;
+      ior += a.ior;
+      wsum += 1.0f;
+    } else {
+      const float w = static_cast<float>(weights[i]);
+      nsum += a.normal * w;
+      csum += a.colour * w;
+      refl += a.reflectivity * w;
+      transp += a.transparency * w;
+      ior += a.ior * w;
+      wsum += w;
+      if (weights[i] > weights[heaviest]) heaviest = i;
+    }
   }
   const float inv = 1.0f / wsum;
   out.colour = csum * inv;
@@ -306,7 +318,8 @@ SparseVoxelOctree SparseVoxelOctree::build_from(const VoxelSet& set, std::vector
       ++m;
     }
     counts[idx] = total;
-    inner[idx] = average_children(attrs, weights, slots, m, child_half);
+    inner[idx] = leaf_children ? average_children<true>(attrs, weights, slots, m, child_half)
+                               : average_children<false>(attrs, weights, slots, m, child_half);
   };
 
   // Pass 2: nodes of levels k..depth-1 in voxel order, each averaged when its last child is done.
