@@ -790,6 +790,76 @@ TEST(Svo, BuildRejectsInvalidSets) {
   EXPECT_THROW(svo.attributes(static_cast<uint32_t>(ok.size() + svo.nodes().size())), Error);
 }
 
+/// Large sets are built by chunks of voxels in parallel: the tree must not depend on the thread
+/// count or on which build() was called, its levels must be the input's shifted codes, and an
+/// invalid voxel in any chunk must get validate_set's message (with its index).
+TEST(Svo, ChunkedBuildIsDeterministicAndChecksEveryChunk) {
+  const VoxelSet set = random_set(dyadic_grid(10), 400000, 21);
+  ASSERT_GT(set.size(), 300000u);
+  std::vector<SparseVoxelOctree> trees;
+  for (const int threads : {1, 2, 0}) {  // 0: all hardware threads
+    VoxelTracerOptions o;
+    o.threads = threads;
+    trees.push_back(SparseVoxelOctree::build(set, o));
+    VoxelSet moved = set;
+    trees.push_back(SparseVoxelOctree::build(std::move(moved), o));
+  }
+  const SparseVoxelOctree& ref = trees.front();
+  for (int l = 0; l <= set.grid.depth; ++l) {
+    std::vector<uint64_t> want;
+    for (const uint64_t c : set.codes) {
+      const uint64_t p = c >> (3 * (set.grid.depth - l));
+      if (want.empty() || want.back() != p) want.push_back(p);
+    }
+    EXPECT_EQ(ref.level_set(l).codes, want) << "level " << l;
+  }
+  for (const SparseVoxelOctree& t : trees) {
+    ASSERT_EQ(t.nodes().size(), ref.nodes().size());
+    EXPECT_EQ(std::memcmp(t.nodes().data(), ref.nodes().data(), ref.nodes().size_bytes()), 0);
+    EXPECT_EQ(std::memcmp(t.inner_attributes().data(), ref.inner_attributes().data(),
+                          ref.inner_attributes().size_bytes()),
+              0);
+    EXPECT_EQ(std::memcmp(t.leaf_attributes().data(), set.attrs.data(), ref.leaf_attributes().size_bytes()), 0);
+    EXPECT_TRUE(std::equal(t.level_offsets().begin(), t.level_offsets().end(), ref.level_offsets().begin(),
+                           ref.level_offsets().end()));
+  }
+
+  auto message = [](VoxelSet s, bool move) {
+    VoxelTracerOptions o;
+    o.threads = 2;
+    try {
+      if (move) {
+        const size_t attrs = s.attrs.size();
+        try {
+          SparseVoxelOctree::build(std::move(s), o);
+        } catch (const Error&) {
+          // NOLINTNEXTLINE(bugprone-use-after-move): an invalid set is left as it was given
+          EXPECT_EQ(s.attrs.size(), attrs);
+          throw;
+        }
+      } else {
+        SparseVoxelOctree::build(s, o);
+      }
+    } catch (const Error& e) {
+      return std::string(e.what());
+    }
+    return std::string("no error");
+  };
+  for (const size_t at : {size_t{1}, set.size() / 2 + 17, set.size() - 1}) {
+    for (const bool move : {false, true}) {
+      VoxelSet s = set;
+      s.attrs[at].colour.y = std::numeric_limits<float>::infinity();
+      EXPECT_EQ(message(s, move), "svo: voxel " + std::to_string(at) + ": non-finite attributes or contour_lo > contour_hi");
+      s = set;
+      s.attrs[at].contour_lo = s.attrs[at].contour_hi + 1.0f;
+      EXPECT_EQ(message(s, move), "svo: voxel " + std::to_string(at) + ": non-finite attributes or contour_lo > contour_hi");
+      s = set;
+      s.codes[at] = s.codes[at - 1];
+      EXPECT_EQ(message(s, move), "svo: voxel codes must be sorted ascending and unique (voxel " + std::to_string(at) + ")");
+    }
+  }
+}
+
 TEST(Svo, DepthZeroEmptyAndFactory) {
   VoxelSet one;
   one.grid = generic_grid(0);

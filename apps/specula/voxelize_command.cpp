@@ -318,7 +318,9 @@ int voxelize(const VoxelizeCommandOptions& o) {
     VoxelizeStats s;
     SvoInfo i;
     set = voxelize(l.input(), v, &s);
-    if (v.attributes) svo = SparseVoxelOctree::build(std::move(set), {}, &i);  // takes the attributes; codes stay
+    VoxelTracerOptions to;
+    to.threads = o.threads;  // the octree build on the same threads as the voxelizer
+    if (v.attributes) svo = SparseVoxelOctree::build(std::move(set), to, &i);  // takes the attributes; codes stay
     if (s.ms + i.build_ms < best) {
       best = s.ms + i.build_ms;
       st = s;

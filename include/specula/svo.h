@@ -19,8 +19,11 @@
 #pragma once
 
 #include <cstdint>
+#include <memory>
+#include <new>
 #include <span>
 #include <string>
+#include <utility>
 #include <vector>
 
 #include "specula/voxel.h"
@@ -34,6 +37,27 @@ class Timer;
 struct SvoNode {
   uint32_t first_child = 0;  ///< node index, or leaf (voxel) index for nodes of level depth - 1
   uint32_t mask = 0;         ///< bit k set: child k exists (k = x | y << 1 | z << 2); bits 8+ zero
+};
+
+/// A std::allocator whose value-initialising construct() does nothing: a resize() leaves the
+/// new elements unwritten (for arrays that are written in full right after, in parallel, so
+/// their pages are first touched there and never zero-filled). The element types used with it
+/// are implicit-lifetime aggregates.
+template <class T>
+struct UninitAllocator : std::allocator<T> {
+  template <class U>
+  struct rebind {
+    using other = UninitAllocator<U>;
+  };
+  UninitAllocator() = default;
+  template <class U>
+  explicit UninitAllocator(const UninitAllocator<U>& /*other*/) noexcept {}
+  template <class U>
+  void construct(U* /*p*/) noexcept {}
+  template <class U, class... Args>
+  void construct(U* p, Args&&... args) {
+    ::new (static_cast<void*>(p)) U(std::forward<Args>(args)...);
+  }
 };
 
 /// Figures of a built or loaded octree.
@@ -100,9 +124,9 @@ class SparseVoxelOctree final : public VoxelTracer {
                                       const VoxelTracerOptions& options, SvoInfo* info, const Timer& timer);
 
   VoxelGrid grid_;
-  std::vector<SvoNode> nodes_;
+  std::vector<SvoNode, UninitAllocator<SvoNode>> nodes_;
   std::vector<VoxelAttributes> leaf_attrs_;
-  std::vector<VoxelAttributes> inner_attrs_;  ///< parallel to nodes_
+  std::vector<VoxelAttributes, UninitAllocator<VoxelAttributes>> inner_attrs_;  ///< parallel to nodes_
   std::vector<uint32_t> level_offsets_;
   VoxelHitMode mode_ = VoxelHitMode::Cubes;
   int lod_ = 0;

@@ -11,8 +11,12 @@
 #include <tbb/task_arena.h>
 
 #include <algorithm>
+#include <array>
 #include <bit>
 #include <cmath>
+#include <cstddef>
+#include <cstring>
+#include <memory>
 #include <string>
 #include <vector>
 
@@ -26,7 +30,10 @@ namespace specula {
 namespace {
 
 /// Averaged attributes of one inner node from its children (weights = voxel counts).
-/// \p child_half is the children's half side in world units.
+/// \p child_half is the children's half side in world units. kUnitWeights: every weight is 1
+/// (the children are voxels), so the products by the weights are left out (x * 1.0f == x:
+/// the same result, bit for bit).
+template <bool kUnitWeights>
 VoxelAttributes average_children(const VoxelAttributes* const* attrs, const uint32_t* weights, const int* slots, int n,
                                  float child_half) {
   VoxelAttributes out;
@@ -34,15 +41,24 @@ VoxelAttributes average_children(const VoxelAttributes* const* attrs, const uint
   float refl = 0.0f, transp = 0.0f, ior = 0.0f, wsum = 0.0f;
   int heaviest = 0;
   for (int i = 0; i < n; ++i) {
-    const float w = static_cast<float>(weights[i]);
     const VoxelAttributes& a = *attrs[i];
-    nsum += a.normal * w;
-    csum += a.colour * w;
-    refl += a.reflectivity * w;
-    transp += a.transparency * w;
-    ior += a.ior * w;
-    wsum += w;
-    if (weights[i] > weights[heaviest]) heaviest = i;
+    if constexpr (kUnitWeights) {
+      nsum += a.normal;
+      csum += a.colour;
+      refl += a.reflectivity;
+      transp += a.transparency;
+      ior += a.ior;
+      wsum += 1.0f;
+    } else {
+      const float w = static_cast<float>(weights[i]);
+      nsum += a.normal * w;
+      csum += a.colour * w;
+      refl += a.reflectivity * w;
+      transp += a.transparency * w;
+      ior += a.ior * w;
+      wsum += w;
+      if (weights[i] > weights[heaviest]) heaviest = i;
+    }
   }
   const float inv = 1.0f / wsum;
   out.colour = csum * inv;
@@ -88,6 +104,46 @@ VoxelAttributes average_children(const VoxelAttributes* const* attrs, const uint
   return out;
 }
 
+/// validate_set's test of one voxel's attributes (every float finite, contour_lo <= contour_hi),
+/// branch-free: x - x is 0 for a finite x and NaN for an infinity or a NaN.
+bool finite_attrs(const VoxelAttributes& a) {
+  static_assert(sizeof(VoxelAttributes) == 48 && offsetof(VoxelAttributes, material) == 44);
+  typedef float Float4 __attribute__((vector_size(16)));
+  Float4 v[3];
+  std::memcpy(static_cast<void*>(v), &a, sizeof v);
+  v[2][3] = 0.0f;  // the material id: not a float
+  const Float4 z = (v[0] - v[0]) + (v[1] - v[1]) + (v[2] - v[2]);
+  return (z[0] + z[1]) + (z[2] + z[3]) == 0.0f && a.contour_lo <= a.contour_hi;
+}
+
+/// What the parallel checks found invalid: voxel::validate_set() on a copy then throws its exact
+/// message (only on this path, so the copy costs nothing in a valid build).
+[[noreturn]] void reject(const VoxelSet& set, const std::vector<VoxelAttributes>* attrs) {
+  VoxelSet copy;
+  copy.grid = set.grid;
+  copy.codes = set.codes;
+  copy.attrs = attrs ? *attrs : set.attrs;
+  voxel::validate_set(copy, "svo");
+  throw Error("svo: invalid voxel set");  // not reached: the checks here are validate_set's
+}
+
+/// A run of voxels holding whole subtrees below the split level k: the nodes it creates at
+/// each level k..depth-1 are contiguous in that level, so chunks build in parallel.
+struct Chunk {
+  size_t begin = 0, end = 0;                                  ///< voxel range
+  std::array<uint32_t, kMaxVoxelDepth + 1> count{};           ///< nodes per level (k..depth-1)
+  std::array<uint32_t, kMaxVoxelDepth + 1> first{};           ///< their first node index per level
+  std::vector<uint64_t> top;                                  ///< codes of its level-k nodes
+  bool bad_codes = false, bad_attrs = false;
+};
+
+/// First level (>= k) at which voxel code \p c starts new nodes after voxel code \p prev: the
+/// nodes of level l are the codes shifted right by 3 (depth - l).
+inline int split_level(uint64_t c, uint64_t prev, int depth, int k) {
+  const int h = 63 - std::countl_zero(c ^ prev);  // c != prev (checked)
+  return std::max(k, depth - h / 3);
+}
+
 }  // namespace
 
 SparseVoxelOctree SparseVoxelOctree::build(const VoxelSet& set, const VoxelTracerOptions& options, SvoInfo* info) {
@@ -97,41 +153,115 @@ SparseVoxelOctree SparseVoxelOctree::build(const VoxelSet& set, const VoxelTrace
 SparseVoxelOctree SparseVoxelOctree::build(VoxelSet&& set, const VoxelTracerOptions& options, SvoInfo* info) {
   const Timer timer;
   std::vector<VoxelAttributes> attrs;
-  if (!set.attrs.empty()) {
-    voxel::validate_set(set, "svo");  // with its attributes, before they move
-    attrs.swap(set.attrs);
+  if (!set.attrs.empty() && set.attrs.size() == set.codes.size()) attrs.swap(set.attrs);  // checked in build_from
+  try {
+    return build_from(set, attrs.empty() ? nullptr : &attrs, options, info, timer);
+  } catch (...) {
+    if (set.attrs.empty()) set.attrs.swap(attrs);  // an invalid set is left as it was given
+    throw;
   }
-  return build_from(set, attrs.empty() ? nullptr : &attrs, options, info, timer);
 }
 
 SparseVoxelOctree SparseVoxelOctree::build_from(const VoxelSet& set, std::vector<VoxelAttributes>* steal,
                                                 const VoxelTracerOptions& options, SvoInfo* info,
                                                 const Timer& timer) {
-  SparseVoxelOctree svo;
-  if (steal) {  // validated by the caller, attributes included
-    svo.leaf_attrs_ = std::move(*steal);
-  } else {
-    voxel::validate_set(set, "svo");
-    svo.leaf_attrs_ = voxel::attributes_or_default(set);
+  // The set's grid and sizes first (validate_set on the grid alone), then codes and attribute
+  // values in parallel: codes before anything is laid out, attribute values while the leaves'
+  // parents average them. Any failure: validate_set's message (reject()).
+  {
+    VoxelSet grid_only;
+    grid_only.grid = set.grid;
+    voxel::validate_set(grid_only, "svo");
+    const size_t n = set.codes.size();
+    if ((!set.attrs.empty() && set.attrs.size() != n) ||
+        n >= (size_t{1} << 31) / static_cast<size_t>(std::max(set.grid.depth, 1)))
+      reject(set, steal);
   }
+  SparseVoxelOctree svo;
   svo.grid_ = set.grid;
   svo.mode_ = options.mode;
   svo.set_lod(options.lod);
   const int depth = set.grid.depth;
-  if (depth == 0) {
-    svo.level_offsets_ = {0};
+  const size_t n = set.codes.size();
+  const uint64_t* codes = set.codes.data();
+  tbb::task_arena arena(options.threads > 0 ? options.threads : tbb::task_arena::automatic);
+  const int threads = options.threads > 0 ? options.threads : arena.max_concurrency();
+
+  if (depth == 0 || n == 0) {
+    // Trivial sets: the serial checks, then a lone root (an empty tree is a root without children).
+    const std::vector<VoxelAttributes>& given = steal ? *steal : set.attrs;
+    if (n > 1 || (n == 1 && (codes[0] != 0 || (!given.empty() && !finite_attrs(given[0]))))) reject(set, steal);
+    svo.leaf_attrs_ = steal ? std::move(*steal) : voxel::attributes_or_default(set);
+    if (depth == 0) {
+      svo.level_offsets_ = {0};
+    } else {
+      svo.level_offsets_.assign(static_cast<size_t>(depth) + 1, 1);
+      svo.level_offsets_[0] = 0;
+      svo.nodes_.assign(1, SvoNode{depth > 1 ? 1u : 0u, 0u});
+      svo.inner_attrs_.assign(1, VoxelAttributes{});
+    }
     if (info) *info = svo.info(), info->build_ms = timer.ms();
     return svo;
   }
 
-  // Codes and masks of the nodes of every level 0..depth-1, bottom-up.
-  std::vector<std::vector<uint64_t>> codes(static_cast<size_t>(depth));
-  std::vector<std::vector<uint8_t>> masks(static_cast<size_t>(depth));
-  const std::vector<uint64_t>* below = &set.codes;
-  for (int l = depth - 1; l >= 0; --l) {
-    auto& c = codes[static_cast<size_t>(l)];
-    auto& m = masks[static_cast<size_t>(l)];
-    for (const uint64_t code : *below) {
+  // Split level k: levels k..depth-1 are built by chunks of voxels in parallel, levels 0..k-1
+  // (at most 8^k - 1 nodes) serially from the chunks' level-k codes.
+  const int k = std::min(depth - 1, 5);
+  const int top_shift = 3 * (depth - k);
+  const uint64_t limit = uint64_t{1} << (3 * depth);
+  std::vector<Chunk> chunks;
+  {
+    const size_t want = std::clamp<size_t>(n / 16384, 1, static_cast<size_t>(16 * threads));
+    size_t b = 0;
+    for (size_t c = 1; c <= want && b < n; ++c) {
+      size_t e = c == want ? n : std::max(b + 1, n * c / want);
+      while (e < n && (codes[e] >> top_shift) == (codes[e - 1] >> top_shift)) ++e;
+      Chunk ch;
+      ch.begin = b;
+      ch.end = e;
+      chunks.push_back(std::move(ch));
+      b = e;
+    }
+  }
+  const auto for_chunks = [&](auto&& f) {
+    if (chunks.size() == 1 || threads == 1) {
+      for (Chunk& ch : chunks) f(ch);
+    } else {
+      arena.execute([&] {
+        tbb::parallel_for(size_t{0}, chunks.size(), [&](size_t c) { f(chunks[c]); });
+      });
+    }
+  };
+
+  // Pass 1: check the codes (in range, increasing), count the nodes per level, collect the
+  // level-k codes.
+  for_chunks([&](Chunk& ch) {
+    std::array<uint32_t, kMaxVoxelDepth + 1> starts{};  // nodes opening at exactly level L
+    for (size_t i = ch.begin; i < ch.end; ++i) {
+      const uint64_t c = codes[i];
+      if (c >= limit || (i > 0 && c <= codes[i - 1])) {
+        ch.bad_codes = true;
+        return;
+      }
+      const int L = i == ch.begin ? k : split_level(c, codes[i - 1], depth, k);
+      if (L >= depth) continue;
+      ++starts[static_cast<size_t>(L)];
+      if (L == k) ch.top.push_back(c >> top_shift);
+    }
+    uint32_t run = 0;
+    for (int l = k; l < depth; ++l) ch.count[static_cast<size_t>(l)] = run += starts[static_cast<size_t>(l)];
+  });
+  for (const Chunk& ch : chunks)
+    if (ch.bad_codes) reject(set, steal);
+
+  // Levels 0..k-1: the old bottom-up merge of the level-k codes (sorted: chunks are in order).
+  std::vector<std::vector<uint64_t>> up_codes(static_cast<size_t>(k) + 1);
+  std::vector<std::vector<uint8_t>> up_masks(static_cast<size_t>(k));
+  for (const Chunk& ch : chunks) up_codes[static_cast<size_t>(k)].insert(up_codes[static_cast<size_t>(k)].end(), ch.top.begin(), ch.top.end());
+  for (int l = k - 1; l >= 0; --l) {
+    auto& c = up_codes[static_cast<size_t>(l)];
+    auto& m = up_masks[static_cast<size_t>(l)];
+    for (const uint64_t code : up_codes[static_cast<size_t>(l) + 1]) {
       const uint64_t parent = code >> 3;
       if (c.empty() || c.back() != parent) {
         c.push_back(parent);
@@ -139,67 +269,116 @@ SparseVoxelOctree SparseVoxelOctree::build_from(const VoxelSet& set, std::vector
       }
       m.back() = static_cast<uint8_t>(m.back() | (1u << (code & 7u)));
     }
-    below = &c;
-  }
-  if (set.codes.empty()) {  // an empty tree is a root without children
-    codes[0] = {0};
-    masks[0] = {0};
   }
 
-  // Breadth-first layout.
+  // Breadth-first layout: level sizes, each chunk's first node per level.
   svo.level_offsets_.assign(static_cast<size_t>(depth) + 1, 0);
-  for (int l = 0; l < depth; ++l)
-    svo.level_offsets_[static_cast<size_t>(l) + 1] =
-        svo.level_offsets_[static_cast<size_t>(l)] + static_cast<uint32_t>(codes[static_cast<size_t>(l)].size());
-  svo.nodes_.resize(svo.level_offsets_.back());
   for (int l = 0; l < depth; ++l) {
-    uint32_t running = l + 1 < depth ? svo.level_offsets_[static_cast<size_t>(l) + 1] : 0;
-    const auto& m = masks[static_cast<size_t>(l)];
+    size_t size = 0;
+    if (l < k) {
+      size = up_codes[static_cast<size_t>(l)].size();
+    } else {
+      for (const Chunk& ch : chunks) size += ch.count[static_cast<size_t>(l)];
+    }
+    svo.level_offsets_[static_cast<size_t>(l) + 1] = svo.level_offsets_[static_cast<size_t>(l)] + static_cast<uint32_t>(size);
+  }
+  for (int l = k; l < depth; ++l) {
+    uint32_t at = svo.level_offsets_[static_cast<size_t>(l)];
+    for (Chunk& ch : chunks) {
+      ch.first[static_cast<size_t>(l)] = at;
+      at += ch.count[static_cast<size_t>(l)];
+    }
+  }
+  const size_t node_count = svo.level_offsets_.back();
+  // Written once each below (no zero-fill: the pages are first touched by the parallel pass).
+  svo.nodes_.resize(node_count);
+  svo.inner_attrs_.resize(node_count);
+  const std::unique_ptr<uint32_t[]> counts(new uint32_t[node_count]);  // voxels below each node
+  svo.leaf_attrs_ = steal ? std::move(*steal) : voxel::attributes_or_default(set);
+
+  SvoNode* nodes = svo.nodes_.data();
+  VoxelAttributes* inner = svo.inner_attrs_.data();
+  const VoxelAttributes* leaves = svo.leaf_attrs_.data();
+  const auto close = [&](uint32_t idx, int l) {  // averages node idx (level l) from its children
+    const SvoNode node = nodes[idx];
+    const bool leaf_children = l == depth - 1;
+    const float child_half = 0.25f * set.grid.side / static_cast<float>(1u << l);
+    const VoxelAttributes* attrs[8];
+    uint32_t weights[8];
+    int slots[8];
+    int m = 0;
+    uint32_t total = 0;
+    for (uint32_t bits = node.mask; bits != 0; bits &= bits - 1) {
+      const int s = std::countr_zero(bits);
+      const uint32_t c = node.first_child + static_cast<uint32_t>(m);
+      attrs[m] = leaf_children ? &leaves[c] : &inner[c];
+      weights[m] = leaf_children ? 1u : counts[c];
+      slots[m] = s;
+      total += weights[m];
+      ++m;
+    }
+    counts[idx] = total;
+    inner[idx] = leaf_children ? average_children<true>(attrs, weights, slots, m, child_half)
+                               : average_children<false>(attrs, weights, slots, m, child_half);
+  };
+
+  // Pass 2: nodes of levels k..depth-1 in voxel order, each averaged when its last child is done.
+  for_chunks([&](Chunk& ch) {
+    // The open node of each level, and its child mask so far (stored when it closes).
+    std::array<uint32_t, kMaxVoxelDepth + 1> next = ch.first, open{}, mask{};
+    const size_t last = static_cast<size_t>(depth) - 1;
+    bool bad = false;
+    for (size_t i = ch.begin; i < ch.end; ++i) {
+      const uint64_t c = codes[i];
+      const int L = i == ch.begin ? k : split_level(c, codes[i - 1], depth, k);
+      if (L < depth) {
+        if (i > ch.begin)
+          for (int l = depth - 1; l >= L; --l) {
+            const auto ul = static_cast<size_t>(l);
+            nodes[open[ul]].mask = mask[ul];
+            close(open[ul], l);
+          }
+        for (int l = L; l < depth; ++l) {
+          const auto ul = static_cast<size_t>(l);
+          const uint32_t idx = next[ul]++;
+          open[ul] = idx;
+          mask[ul] = 0;
+          nodes[idx].first_child = ul == last ? static_cast<uint32_t>(i) : next[ul + 1];
+        }
+        for (int l = std::max(L - 1, k); l < depth - 1; ++l)
+          mask[static_cast<size_t>(l)] |= 1u << ((c >> (3 * (depth - 1 - l))) & 7u);
+      }
+      mask[last] |= 1u << (c & 7u);
+      bad |= !finite_attrs(leaves[i]);
+    }
+    for (int l = depth - 1; l >= k; --l) {
+      const auto ul = static_cast<size_t>(l);
+      nodes[open[ul]].mask = mask[ul];
+      close(open[ul], l);
+    }
+    ch.bad_attrs = bad;
+  });
+  for (const Chunk& ch : chunks) {
+    if (!ch.bad_attrs) continue;
+    if (!steal) reject(set, nullptr);
+    *steal = std::move(svo.leaf_attrs_);  // back to the caller (build(VoxelSet&&) restores the set)
+    reject(set, steal);
+  }
+
+  // Levels k-1..0: nodes, then their averages bottom-up.
+  for (int l = 0; l < k; ++l) {
+    uint32_t running = svo.level_offsets_[static_cast<size_t>(l) + 1];
+    const auto& m = up_masks[static_cast<size_t>(l)];
     const uint32_t base = svo.level_offsets_[static_cast<size_t>(l)];
     for (size_t j = 0; j < m.size(); ++j) {
-      svo.nodes_[base + j] = SvoNode{running, m[j]};
+      nodes[base + j] = SvoNode{running, m[j]};
       running += static_cast<uint32_t>(std::popcount(static_cast<unsigned>(m[j])));
     }
   }
-  codes.clear();
-  masks.clear();
+  for (int l = k - 1; l >= 0; --l)
+    for (uint32_t i = svo.level_offsets_[static_cast<size_t>(l)]; i < svo.level_offsets_[static_cast<size_t>(l) + 1]; ++i)
+      close(i, l);
 
-  // Level-of-detail attributes, bottom-up; weights = voxel counts below each node.
-  svo.inner_attrs_.resize(svo.nodes_.size());
-  std::vector<uint32_t> counts(svo.nodes_.size(), 0);
-  tbb::task_arena arena(options.threads > 0 ? options.threads : tbb::task_arena::automatic);
-  for (int l = depth - 1; l >= 0; --l) {
-    const bool leaf_children = l == depth - 1;
-    const float child_half = 0.25f * set.grid.side / static_cast<float>(1u << l);
-    const uint32_t begin = svo.level_offsets_[static_cast<size_t>(l)], end = svo.level_offsets_[static_cast<size_t>(l) + 1];
-    const auto work = [&](const tbb::blocked_range<uint32_t>& range) {
-      for (uint32_t i = range.begin(); i != range.end(); ++i) {
-        const SvoNode& node = svo.nodes_[i];
-        if (node.mask == 0) continue;  // empty root
-        const VoxelAttributes* attrs[8];
-        uint32_t weights[8];
-        int slots[8];
-        int n = 0;
-        uint32_t total = 0;
-        for (int k = 0; k < 8; ++k) {
-          if (!((node.mask >> k) & 1u)) continue;
-          const uint32_t c = node.first_child + static_cast<uint32_t>(n);
-          attrs[n] = leaf_children ? &svo.leaf_attrs_[c] : &svo.inner_attrs_[c];
-          weights[n] = leaf_children ? 1u : counts[c];
-          slots[n] = k;
-          total += weights[n];
-          ++n;
-        }
-        counts[i] = total;
-        svo.inner_attrs_[i] = average_children(attrs, weights, slots, n, child_half);
-      }
-    };
-    if (options.threads == 1 || end - begin < 4096) {
-      work(tbb::blocked_range<uint32_t>(begin, end));
-    } else {
-      arena.execute([&] { tbb::parallel_for(tbb::blocked_range<uint32_t>(begin, end, 1024), work); });
-    }
-  }
   if (info) {
     *info = svo.info();
     info->build_ms = timer.ms();
