@@ -1010,6 +1010,9 @@ Bvh Bvh::build(const TriangleInput& input, const BvhOptions& options, BuildInfo*
           const int a = best_split(b, slots, best);
           gather(gather, bin[b].left_first, a, list, k);
           gather(gather, bin[b].left_first + 1, slots - a, list, k);
+          // Largest child first: any-hit walks visit the children in slot order, and a larger
+          // box is likelier to hold an occluder (closest-hit walks order by distance).
+          std::stable_sort(list, list + k, [&](const Slot& x, const Slot& y) { return half_area_of(x.node) > half_area_of(y.node); });
         }
         const uint32_t index = static_cast<uint32_t>(wide.size());
         wide.emplace_back();  // the slot; filled after the subtrees (pre-order numbering)
