@@ -964,7 +964,7 @@ Bvh Bvh::build(const TriangleInput& input, const BvhOptions& options, BuildInfo*
         float* cj = &cost[j * W];
         uint8_t* sj = &split[j * W];
         const float area = std::max(half_area_of(jj), 0.0f);
-        const float leaf = sub_count[j] <= max_leaf ? area * kBlockCost * static_cast<float>((sub_count[j] + 3) / 4) : kInf;
+        const float leaf = sub_count[j] <= max_leaf ? area * kBlockCost * blocks(sub_count[j]) : kInf;
         if (bin[j].is_leaf()) {
           for (int k = 0; k < W; ++k) cj[k] = leaf, sj[k] = k == 0 ? 1 : 0;
           continue;
