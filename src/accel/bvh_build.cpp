@@ -939,9 +939,14 @@ Bvh Bvh::build(const TriangleInput& input, const BvhOptions& options, BuildInfo*
       // blocks of four triangles; any subtree of at most max_leaf triangles may become one
       // leaf). The greedy collapse (open the largest child until W) left 4.2 children per
       // 8-wide node and visited more nodes per ray.
-      // Node and block costs equal, as the binary SAH charges them: dearer nodes (1.5, 2.5)
-      // merged leaves and tested more triangles (diffuse rays +0.2%, +2.4% instructions).
-      constexpr float kNodeCost = 1.0f, kBlockCost = 1.0f;
+      // Node and block costs equal, as the binary SAH charges them, for the kernels that test
+      // one block per SIMD operation: dearer nodes (1.5, 2.5) merged leaves and tested more
+      // triangles (avx2x8 diffuse rays +0.2%, +2.4% instructions). The 16-wide AVX-512 kernel
+      // tests two blocks per operation and a node of 16 boxes: 2.5 merges small subtrees into
+      // leaves there (bunny: 1,451 -> 1,026 nodes, 10.4 -> 13.0 children each), 2-6% faster
+      // on most single-ray kinds in alternating wall-time runs (1, 2.5, 4, 6 tried).
+      const float kNodeCost = W == 16 ? 2.5f : 1.0f;
+      constexpr float kBlockCost = 1.0f;
       const std::unique_ptr<float[]> cost(new float[nb * W]);
       // split[j][k - 1]: 0 = as for k - 1 slots (or, for k = 1: 0 = wide node, 1 = leaf), else
       // the left child's slot count a (the right one gets k - a).
