@@ -929,7 +929,7 @@ Bvh Bvh::build(const TriangleInput& input, const BvhOptions& options, BuildInfo*
       using Node = typename std::remove_reference_t<decltype(wide)>::value_type;
       constexpr int W = Node::kWidth;
       // Leaves end the collapse, so wide nodes hold fewer than W children: the bunny gets one
-      // wide node per 4.9 / 9.9 / 18.7 binary nodes at W = 4 / 8 / 16. Reserving for W - 1
+      // wide node per 4.9 / 9.9 / 26.5 binary nodes at W = 4 / 8 / 16. Reserving for W - 1
       // regrew the array (copying every node) with the greedy collapse; this bound never does.
       wide.reserve(bin.size() / std::min(W - 1, 4) + 1);
       // SAH-optimal collapse (Ylitie, Karras, Laine 2017, "Efficient Incoherent Ray Traversal on
