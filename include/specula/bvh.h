@@ -54,7 +54,8 @@ static_assert(sizeof(BvhTriangle4) == 160, "triangle blocks are 2.5 cache lines"
 
 /// Traversal layout derived from the binary tree after the build (Wald et al. 2008, "Getting
 /// Rid of Packets": multi-branching BVH for single rays): every node holds up to W children
-/// (the binary tree collapsed by opening the largest interior child until W are reached),
+/// (the binary tree collapsed by a dynamic programme that picks each node's children for the
+/// least SAH cost, Ylitie et al. 2017; children in decreasing area),
 /// bounds stored as SIMD lanes so one slab test (SSE for W = 4, AVX2 for W = 8) covers all of
 /// them. b[0] = min, b[1] = max, each [axis][child]. Empty slots have min = +inf, max = -inf,
 /// which the near/far-plane slab test always rejects.

@@ -181,9 +181,9 @@ SPECULA_ACCEL_INLINE int intersect_watertight4(const WatertightRay4& r, const fl
   // with all three NaN (padding) fails here.
   const __m128 lo = _mm_min_ps(_mm_min_ps(u, w1), w2), hi = _mm_max_ps(_mm_max_ps(u, w1), w2);
   const __m128 inside = _mm_or_ps(_mm_cmpge_ps(lo, zero), _mm_cmple_ps(hi, zero));
-  const int inside_mask = _mm_movemask_ps(inside);
+  // The common case, no lane inside nor on an edge, takes one test.
+  if (_mm_movemask_ps(_mm_or_ps(inside, on_edge)) == 0) return 0;
   if (_mm_movemask_ps(on_edge) != 0) [[unlikely]] return -1;
-  if (inside_mask == 0) return 0;  // the common case: no lane inside
   const __m128 det = _mm_add_ps(_mm_add_ps(u, w1), w2);
   const __m128 t_scaled = _mm_add_ps(_mm_add_ps(_mm_mul_ps(u, _mm_mul_ps(r.sz, az)), _mm_mul_ps(w1, _mm_mul_ps(r.sz, bz))),
                                      _mm_mul_ps(w2, _mm_mul_ps(r.sz, cz)));
