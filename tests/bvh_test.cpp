@@ -539,6 +539,36 @@ TEST(BvhStructure, SameTreeForAnyThreadCount) {
   check_invariants(b, soup.input(), two);
 }
 
+TEST(BvhStructure, RebuildsAndConcurrentBuildsGiveTheSameTree) {
+  // Builds reuse their calling thread's scratch memory: a smaller build after a larger one
+  // (stale contents beyond its size), a larger one after it (regrown), and builds running
+  // concurrently on TBB's threads (each thread's own scratch) must all give the fresh trees.
+  const Mesh big = test::make_soup(40000, 5), small = test::make_soup(3000, 9);
+  BvhOptions o;
+  o.threads = 2;
+  const Bvh ref_big = Bvh::build(big.input(), o), ref_small = Bvh::build(small.input(), o);
+  const auto same = [](const Bvh& a, const Bvh& b) {
+    if (a.nodes().size() != b.nodes().size() || a.build_info().sah_cost != b.build_info().sah_cost) return false;
+    for (size_t i = 0; i < a.nodes().size(); ++i) {
+      const BvhNode &x = a.nodes()[i], &y = b.nodes()[i];
+      if (!(x.min == y.min && x.max == y.max && x.left_first == y.left_first && x.count == y.count)) return false;
+    }
+    return std::equal(a.prim_ids().begin(), a.prim_ids().end(), b.prim_ids().begin(), b.prim_ids().end());
+  };
+  EXPECT_TRUE(same(Bvh::build(small.input(), o), ref_small));
+  EXPECT_TRUE(same(Bvh::build(big.input(), o), ref_big));
+  std::atomic<int> wrong{0};
+  tbb::parallel_for(tbb::blocked_range<int>(0, 8, 1), [&](const tbb::blocked_range<int>& r) {
+    for (int i = r.begin(); i != r.end(); ++i) {
+      BvhOptions one = o;
+      one.threads = 1 + i % 2;
+      const bool ok = i % 2 ? same(Bvh::build(big.input(), one), ref_big) : same(Bvh::build(small.input(), one), ref_small);
+      if (!ok) ++wrong;
+    }
+  });
+  EXPECT_EQ(wrong.load(), 0);
+}
+
 TEST(BvhStructure, CoincidentCentroidsRespectMaxLeafSize) {
   // 200 copies of one triangle: no SAH split exists; the builder must still honour
   // max_leaf_size by halving the index range, and every copy stays reachable.
