@@ -787,21 +787,26 @@ Film render_whitted(const Scene& scene, const Tracer& tracer, const RenderOption
 
   const int threads = options.threads > 0 ? options.threads : tbb::this_task_arena::max_concurrency();
   tbb::task_arena arena(std::max(1, threads));
-  // One parallel loop over all tiles (no barrier between groups of tiles: a frame waits for
-  // its slowest thread once). Progress is reported by the calling thread only (the arena's
-  // slot 0) as it finishes tiles, so the callback never runs concurrently with itself.
-  std::atomic<int> done{0};
+  // Tiles are taken one at a time, in order, from a shared counter by every thread of the
+  // arena: the threads work on neighbouring tiles (one region of the scene in the caches at a
+  // time) and finish together, with no barrier until the frame is done. Progress is reported
+  // by the calling thread only (the arena's slot 0), so the callback never runs concurrently
+  // with itself.
+  std::atomic<int> next_tile{0};
+  const int workers = arena.max_concurrency();
   arena.execute([&] {
-    tbb::parallel_for(tbb::blocked_range<int>(0, tiles, 1), [&](const tbb::blocked_range<int>& r) {
+    tbb::parallel_for(0, workers, [&](int) {
       Scratch& s = scratch.local();
       TileCounters c;
-      for (int t = r.begin(); t != r.end(); ++t) render_tile(ctx, sky, s, camera, t, c);
+      const bool report = options.progress && tbb::this_task_arena::current_thread_index() == 0;
+      for (int t = next_tile.fetch_add(1, std::memory_order_relaxed); t < tiles;
+           t = next_tile.fetch_add(1, std::memory_order_relaxed)) {
+        render_tile(ctx, sky, s, camera, t, c);
+        if (report) options.progress(static_cast<double>(t + 1) / static_cast<double>(tiles));
+      }
       primary += c.primary;
       secondary += c.secondary;
       shadow += c.shadow;
-      const int now = done.fetch_add(static_cast<int>(r.size()), std::memory_order_relaxed) + static_cast<int>(r.size());
-      if (options.progress && tbb::this_task_arena::current_thread_index() == 0)
-        options.progress(static_cast<double>(now) / static_cast<double>(tiles));
     });
   });
   if (options.progress) options.progress(1.0);
