@@ -197,7 +197,6 @@ struct Scratch {
   std::vector<Ray> sorted_rays;      ///< a batch in trace order
   std::vector<Hit> sorted_hits;
   std::vector<Vec3> sorted_t;
-  std::vector<uint32_t> sorted_skip;
   ShadeMaterial voxel_material;  ///< the material of the voxel hit being shaded
 };
 
@@ -593,16 +592,12 @@ void render_tile(const Context& ctx, const SkyEval& sky, Scratch& s, const Pinho
         for (size_t i = 0; i < n; ++i) s.key[i] = s.paths[i].history;
         reorder = s.trace_order.build(s.key);
       }
-      if (reorder) {  // coherent rays side by side (TraceOrder)
+      if (reorder) {  // coherent rays side by side (TraceOrder; never for voxels: no skips)
         const std::vector<uint32_t>& order = s.trace_order.order;
         s.sorted_rays.resize(n);
         s.sorted_hits.assign(n, Hit{});
         for (size_t j = 0; j < n; ++j) s.sorted_rays[j] = s.rays[order[j]];
-        if (!skip.empty()) {
-          s.sorted_skip.resize(n);
-          for (size_t j = 0; j < n; ++j) s.sorted_skip[j] = skip[order[j]];
-        }
-        trace(s.sorted_rays, skip.empty() ? skip : std::span<const uint32_t>(s.sorted_skip), s.sorted_hits, nullptr);
+        trace(s.sorted_rays, {}, s.sorted_hits, nullptr);
         for (size_t j = 0; j < n; ++j) s.hits[order[j]] = s.sorted_hits[j];
       } else {
         trace(s.rays, skip, s.hits, nullptr);
