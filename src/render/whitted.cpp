@@ -359,8 +359,10 @@ SPECULA_OPAQUE float sample_rotation(uint32_t global_pixel) {
     s.shadow_rays.push_back(shadow);
     s.shadow_contrib.push_back(c);
     s.shadow_pixel.push_back(pixel);
-    const auto index = static_cast<uint32_t>(std::min<ptrdiff_t>(&light - ctx.lights.data(), 255));
-    s.shadow_key.push_back((uint32_t{history} << 8) | index);
+    if (ctx.group_rays) {  // only read where batches are grouped
+      const auto index = static_cast<uint32_t>(std::min<ptrdiff_t>(&light - ctx.lights.data(), 255));
+      s.shadow_key.push_back((uint32_t{history} << 8) | index);
+    }
   };
 
   for (const LightSetup& light : ctx.lights) {
@@ -555,7 +557,6 @@ void render_tile(const Context& ctx, const SkyEval& sky, Scratch& s, const Pinho
 
   while (!s.rays.empty()) {
     const size_t n = s.rays.size();
-    s.hits.assign(n, Hit{});
     // Voxel media (seed 001): a ray inside a medium passes the voxels of that medium's material.
     std::span<const uint32_t> skip;
     if (ctx.voxels) {
@@ -577,6 +578,7 @@ void render_tile(const Context& ctx, const SkyEval& sky, Scratch& s, const Pinho
     };
     if (ctx.want_cost) {
       // Per-ray queries so the node visits can be charged to their pixel.
+      s.hits.assign(n, Hit{});
       for (size_t i = 0; i < n; ++i) {
         TraceStats ts;
         trace(std::span<const Ray>(&s.rays[i], 1), skip.empty() ? skip : skip.subspan(i, 1),
@@ -598,8 +600,10 @@ void render_tile(const Context& ctx, const SkyEval& sky, Scratch& s, const Pinho
         s.sorted_hits.assign(n, Hit{});
         for (size_t j = 0; j < n; ++j) s.sorted_rays[j] = s.rays[order[j]];
         trace(s.sorted_rays, {}, s.sorted_hits, nullptr);
+        s.hits.resize(n);  // every entry written below: `order` is a permutation
         for (size_t j = 0; j < n; ++j) s.hits[order[j]] = s.sorted_hits[j];
       } else {
+        s.hits.assign(n, Hit{});
         trace(s.rays, skip, s.hits, nullptr);
       }
     }
