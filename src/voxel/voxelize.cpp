@@ -291,6 +291,12 @@ struct Estimate {
   double bytes = 0;
 };
 
+/// A vertex (x, y, z, 0) in one vector, so a copy or an interpolation is one operation per half
+/// (SSE2) or one (AVX).
+typedef double Vertex4 __attribute__((vector_size(32)));
+/// A clipped part's vertex as stored for the contours: (x, y, z, 0) in floats, converted to and
+/// from a Vertex4 in one operation (each lane rounds exactly as a scalar conversion would).
+typedef float Float4 __attribute__((vector_size(16)));
 // Per-brick scratch sizes used by the estimate and by the code.
 /// Sums of one voxel: weighted by the parts' areas; when every part has zero area (the
 /// triangles only touch the voxel) the same fields hold unweighted sums (see process_brick).
@@ -356,7 +362,7 @@ Estimate estimate(const VoxelizeInput& in, const std::vector<LatticePoint>& lat,
             + 2.0 * e.voxel_bound * per_voxel                       // brick outputs + the set
             + c.threads * brick_voxels * (sizeof(uint32_t) + (o.attributes ? sizeof(Slot) : 4.0));
   if (o.attributes)  // pair records and clipped polygons of the bricks in flight
-    e.bytes += std::min(e.pair_bound, c.threads * brick_voxels * 8.0) * (sizeof(PairRec) + 9 * 3 * sizeof(float));
+    e.bytes += std::min(e.pair_bound, c.threads * brick_voxels * 8.0) * (sizeof(PairRec) + 9 * sizeof(Float4));
   return e;
 }
 
@@ -461,9 +467,6 @@ Tests make_tests(const VoxelStrategy& s, int depth) {
 /// 9 vertices; splits keep at most kPolyMax (more only arise from rounding, never in practice)
 /// and have room for two writes per input vertex, so they write without checks.
 constexpr int kPolyMax = 12;
-/// A vertex (x, y, z, 0) in one vector, so a copy or an interpolation is one operation per half
-/// (SSE2) or one (AVX).
-typedef double Vertex4 __attribute__((vector_size(32)));
 struct Poly {
   int n = 0;
   Vertex4 p[2 * kPolyMax + 2];
@@ -576,7 +579,7 @@ struct Scratch {
   std::vector<uint32_t> sorted;   ///< touched, in increasing order
   std::vector<Slot> slots;
   std::vector<PairRec> pairs;
-  std::vector<std::array<float, 3>> verts;  ///< the first nverts are in use
+  std::vector<Float4> verts;  ///< the first nverts are in use: (x, y, z, 0)
   size_t nverts = 0;
   /// The current triangle's parts per leaf voxel of its bounding-box range in the brick.
   std::vector<Cell> cells;
@@ -727,18 +730,18 @@ void process_brick(const Context& cx, uint64_t brick, const BinEntry* first, con
           const int m = q.n;
           if (s.nverts + static_cast<size_t>(m) > s.verts.size()) s.verts.resize(std::max<size_t>(2 * s.verts.size(), 4096));
           cell.first = static_cast<uint32_t>(s.nverts);
-          std::array<float, 3>* dst = s.verts.data() + s.nverts;
+          Float4* dst = s.verts.data() + s.nverts;
           s.nverts += static_cast<size_t>(m);
           cell.count = static_cast<uint16_t>(m);
           cell.area = m >= 3 ? static_cast<float>(std::fabs(projected_area2(q, pu, pv)) * area_scale) : 0.0f;
           // Vertices relative to the voxel's minimum corner, and their average for the
           // certificate that the part meets the voxel's interior.
-          const double o[3] = {lo[0] + ix, lo[1] + iy, lo[2] + iz};
-          double sum[3] = {0, 0, 0};
+          const Vertex4 o = {lo[0] + ix, lo[1] + iy, lo[2] + iz, 0.0};
+          Vertex4 sum = {0, 0, 0, 0};
           for (int i = 0; i < m; ++i) {
-            const double v[3] = {q.p[i][0] - o[0], q.p[i][1] - o[1], q.p[i][2] - o[2]};
-            dst[i] = {static_cast<float>(v[0]), static_cast<float>(v[1]), static_cast<float>(v[2])};
-            sum[0] += v[0], sum[1] += v[1], sum[2] += v[2];
+            const Vertex4 v = q.p[i] - o;
+            dst[i] = __builtin_convertvector(v, Float4);
+            sum += v;
           }
           const double lo_sum = kInsideMargin * m, hi_sum = (1.0 - kInsideMargin) * m;
           cell.inside = sum[0] > lo_sum && sum[0] < hi_sum && sum[1] > lo_sum && sum[1] < hi_sum &&
@@ -901,10 +904,12 @@ void process_brick(const Context& cx, uint64_t brick, const BinEntry* first, con
     }
     for (const PairRec& p : s.pairs) {
       Slot& sl = s.slots[p.slot];
-      const double n0 = sl.normal[0], n1 = sl.normal[1], n2 = sl.normal[2];
+      // d = n0 (v0 - 0.5) + n1 (v1 - 0.5) + n2 (v2 - 0.5): the products in one vector.
+      const Vertex4 nrm = {sl.normal[0], sl.normal[1], sl.normal[2], 0.0};
+      const Vertex4 half = {0.5, 0.5, 0.5, 0.5};
       for (uint32_t i = 0; i < p.vcount; ++i) {
-        const auto& v = s.verts[p.vfirst + i];
-        const double d = n0 * (v[0] - 0.5) + n1 * (v[1] - 0.5) + n2 * (v[2] - 0.5);
+        const Vertex4 prod = (__builtin_convertvector(s.verts[p.vfirst + i], Vertex4) - half) * nrm;
+        const double d = prod[0] + prod[1] + prod[2];
         sl.cmin = std::min(sl.cmin, d);
         sl.cmax = std::max(sl.cmax, d);
       }
