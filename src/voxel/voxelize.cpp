@@ -300,8 +300,13 @@ typedef float Float4 __attribute__((vector_size(16)));
 // Per-brick scratch sizes used by the estimate and by the code.
 /// Sums of one voxel: weighted by the parts' areas; when every part has zero area (the
 /// triangles only touch the voxel) the same fields hold unweighted sums (see process_brick).
+/// 4 doubles without the vector's 32-byte alignment (members of Slot, kept in a std::vector).
+typedef double Double4u __attribute__((vector_size(32), aligned(8)));
 struct Slot {
-  double w = 0, n[3] = {0, 0, 0}, col[3] = {0, 0, 0}, refl = 0, transp = 0, ior = 0;
+  /// Sums of w * (nx, ny, nz, 1), w * (r, g, b, reflectivity) and w * (transparency, ior, 0, 0)
+  /// over the voxel's parts (w = area), updated one vector each (each lane rounds as the scalar
+  /// sum would); lane 3 of `nw` is the total weight.
+  Double4u nw = {0, 0, 0, 0}, col = {0, 0, 0, 0}, ti = {0, 0, 0, 0};
   uint32_t count = 0;
   float best_area = -1.0f;
   uint32_t best_tri = 0;
@@ -563,6 +568,18 @@ const TriangleAttributes& attributes_of(const VoxelizeInput& in, size_t t) {
   return in.attributes.empty() ? kDefault : in.attributes[t];
 }
 
+/// A triangle's numbers as the vectors Slot sums: (nx, ny, nz, \p one), (r, g, b, reflectivity),
+/// (transparency, ior, 0, 0). The floats are converted from a float vector: GCC 12 was seen to
+/// skip the rounding to float of an inlined unit_normal() when its components initialise a
+/// double vector directly, which changes the sums' last bits.
+inline void triangle_vectors(const Vec3& n, const TriangleAttributes& a, Vertex4& nw, Vertex4& col, Vertex4& ti, float one) {
+  Float4 f[3] = {{n.x, n.y, n.z, one}, {a.colour.x, a.colour.y, a.colour.z, a.reflectivity}, {a.transparency, a.ior, 0.0f, 0.0f}};
+  asm("" : "+m"(f));  // the floats are stored as floats (see above)
+  nw = __builtin_convertvector(f[0], Vertex4);
+  col = __builtin_convertvector(f[1], Vertex4);
+  ti = __builtin_convertvector(f[2], Vertex4);
+}
+
 /// The part of the current triangle inside one leaf voxel of its range.
 struct Cell {
   uint32_t first = 0;   ///< first vertex in Scratch::verts (relative to the voxel's minimum corner)
@@ -654,8 +671,8 @@ void process_brick(const Context& cx, uint64_t brick, const BinEntry* first, con
   s.nverts = 0;
 
   uint32_t cur_tri = 0;
-  Vec3 cur_normal;
-  const TriangleAttributes* cur_attrs = nullptr;
+  // The current triangle's (nx, ny, nz, 1), (r, g, b, reflectivity), (transparency, ior, 0, 0).
+  Vertex4 cur_nw{}, cur_col{}, cur_ti{};
   uint32_t r0[3] = {0, 0, 0}, r1[3] = {0, 0, 0};  // the current triangle's leaf range in the brick
   uint32_t rn[3] = {0, 0, 0};
   auto cell_of = [&](uint32_t X, uint32_t Y, uint32_t Z) -> const Cell& {
@@ -678,20 +695,11 @@ void process_brick(const Context& cx, uint64_t brick, const BinEntry* first, con
     if (!attrs) return;
     const Cell& cell = part ? *part : cell_of(X, Y, Z);
     const float area = cell.area;
-    const Vec3& nrm = cur_normal;
-    const TriangleAttributes& a = *cur_attrs;
     Slot& sl = s.slots[slot];
     const double w = area;
-    sl.w += w;
-    sl.n[0] += w * nrm.x;
-    sl.n[1] += w * nrm.y;
-    sl.n[2] += w * nrm.z;
-    sl.col[0] += w * a.colour.x;
-    sl.col[1] += w * a.colour.y;
-    sl.col[2] += w * a.colour.z;
-    sl.refl += w * a.reflectivity;
-    sl.transp += w * a.transparency;
-    sl.ior += w * a.ior;
+    sl.nw += w * cur_nw;
+    sl.col += w * cur_col;
+    sl.ti += w * cur_ti;
     ++sl.count;
     if (area > sl.best_area) {
       sl.best_area = area;
@@ -775,8 +783,7 @@ void process_brick(const Context& cx, uint64_t brick, const BinEntry* first, con
     }
     if (empty) continue;
     if (attrs) {
-      cur_normal = unit_normal(cx.in, cur_tri);
-      cur_attrs = &attributes_of(cx.in, cur_tri);
+      triangle_vectors(unit_normal(cx.in, cur_tri), attributes_of(cx.in, cur_tri), cur_nw, cur_col, cur_ti, 1.0f);
       cut_parts(t);
     }
     if (octree) {
@@ -872,25 +879,19 @@ void process_brick(const Context& cx, uint64_t brick, const BinEntry* first, con
     // the same (triangle) order.
     for (const PairRec& p : s.pairs) {
       Slot& sl = s.slots[p.slot];
-      if (sl.w > 0.0) continue;
-      const Vec3 nrm = unit_normal(cx.in, p.tri);
-      const TriangleAttributes& a = attributes_of(cx.in, p.tri);
-      sl.n[0] += nrm.x;
-      sl.n[1] += nrm.y;
-      sl.n[2] += nrm.z;
-      sl.col[0] += a.colour.x;
-      sl.col[1] += a.colour.y;
-      sl.col[2] += a.colour.z;
-      sl.refl += a.reflectivity;
-      sl.transp += a.transparency;
-      sl.ior += a.ior;
+      if (sl.nw[3] > 0.0) continue;
+      Vertex4 nw, col, ti;  // lane 3 of nw 0: the weight stays 0
+      triangle_vectors(unit_normal(cx.in, p.tri), attributes_of(cx.in, p.tri), nw, col, ti, 0.0f);
+      sl.nw += nw;
+      sl.col += col;
+      sl.ti += ti;
     }
     for (Slot& sl : s.slots) {
-      const bool weighted = sl.w > 0.0;
-      const double* nn = sl.n;
+      const bool weighted = sl.nw[3] > 0.0;
+      const double nn[3] = {sl.nw[0], sl.nw[1], sl.nw[2]};
 
       const double len = std::sqrt(nn[0] * nn[0] + nn[1] * nn[1] + nn[2] * nn[2]);
-      const double scale = weighted ? sl.w : static_cast<double>(sl.count);
+      const double scale = weighted ? sl.nw[3] : static_cast<double>(sl.count);
       double nv3[3] = {0, 0, 1};
       if (len > 1e-9 * scale) {
         for (int k = 0; k < 3; ++k) nv3[k] = nn[k] / len;
@@ -920,14 +921,14 @@ void process_brick(const Context& cx, uint64_t brick, const BinEntry* first, con
     for (size_t i = 0; i < nv; ++i) {
       const Slot& sl = s.slots[s.slot_of[sorted[i]]];
       VoxelAttributes a;
-      const bool weighted = sl.w > 0.0;
-      const double inv = 1.0 / (weighted ? sl.w : static_cast<double>(sl.count));
-      const double* col = sl.col;
+      const bool weighted = sl.nw[3] > 0.0;
+      const double inv = 1.0 / (weighted ? sl.nw[3] : static_cast<double>(sl.count));
+      const double col[3] = {sl.col[0], sl.col[1], sl.col[2]};
       a.normal = {sl.normal[0], sl.normal[1], sl.normal[2]};
       a.colour = {static_cast<float>(col[0] * inv), static_cast<float>(col[1] * inv), static_cast<float>(col[2] * inv)};
-      a.reflectivity = static_cast<float>(sl.refl * inv);
-      a.transparency = static_cast<float>(sl.transp * inv);
-      a.ior = static_cast<float>(sl.ior * inv);
+      a.reflectivity = static_cast<float>(sl.col[3] * inv);
+      a.transparency = static_cast<float>(sl.ti[0] * inv);
+      a.ior = static_cast<float>(sl.ti[1] * inv);
       a.material = attributes_of(cx.in, sl.best_tri).material;
       // Contours in world units; widened by 1e-5 voxel for the rounding of clipping.
       const double half = 0.5 * (std::fabs(static_cast<double>(sl.normal[0])) + std::fabs(static_cast<double>(sl.normal[1])) +
