@@ -39,6 +39,7 @@
 #include <cmath>
 #include <cstdio>
 #include <limits>
+#include <span>
 #include <string>
 
 #include "specula/error.h"
@@ -673,6 +674,7 @@ void process_brick(const Context& cx, uint64_t brick, const BinEntry* first, con
   uint32_t cur_tri = 0;
   // The current triangle's (nx, ny, nz, 1), (r, g, b, reflectivity), (transparency, ior, 0, 0).
   Vertex4 cur_nw{}, cur_col{}, cur_ti{};
+  size_t zero_area_pairs = 0;  // a voxel can only lack weight if some pair has none
   uint32_t r0[3] = {0, 0, 0}, r1[3] = {0, 0, 0};  // the current triangle's leaf range in the brick
   uint32_t rn[3] = {0, 0, 0};
   auto cell_of = [&](uint32_t X, uint32_t Y, uint32_t Z) -> const Cell& {
@@ -697,6 +699,7 @@ void process_brick(const Context& cx, uint64_t brick, const BinEntry* first, con
     const float area = cell.area;
     Slot& sl = s.slots[slot];
     const double w = area;
+    zero_area_pairs += area == 0.0f;
     sl.nw += w * cur_nw;
     sl.col += w * cur_col;
     sl.ti += w * cur_ti;
@@ -877,7 +880,7 @@ void process_brick(const Context& cx, uint64_t brick, const BinEntry* first, con
   if (attrs) {
     // Voxels the triangles only touch (every part has zero area): unweighted sums instead, in
     // the same (triangle) order.
-    for (const PairRec& p : s.pairs) {
+    for (const PairRec& p : zero_area_pairs > 0 ? std::span<const PairRec>(s.pairs) : std::span<const PairRec>()) {
       Slot& sl = s.slots[p.slot];
       if (sl.nw[3] > 0.0) continue;
       Vertex4 nw, col, ti;  // lane 3 of nw 0: the weight stays 0
