@@ -39,6 +39,7 @@
 #include <cmath>
 #include <cstdio>
 #include <limits>
+#include <span>
 #include <string>
 
 #include "specula/error.h"
@@ -291,11 +292,22 @@ struct Estimate {
   double bytes = 0;
 };
 
+/// A vertex (x, y, z, 0) in one vector, so a copy or an interpolation is one operation per half
+/// (SSE2) or one (AVX).
+typedef double Vertex4 __attribute__((vector_size(32)));
+/// A clipped part's vertex as stored for the contours: (x, y, z, 0) in floats, converted to and
+/// from a Vertex4 in one operation (each lane rounds exactly as a scalar conversion would).
+typedef float Float4 __attribute__((vector_size(16)));
 // Per-brick scratch sizes used by the estimate and by the code.
 /// Sums of one voxel: weighted by the parts' areas; when every part has zero area (the
 /// triangles only touch the voxel) the same fields hold unweighted sums (see process_brick).
+/// 4 doubles without the vector's 32-byte alignment (members of Slot, kept in a std::vector).
+typedef double Double4u __attribute__((vector_size(32), aligned(8)));
 struct Slot {
-  double w = 0, n[3] = {0, 0, 0}, col[3] = {0, 0, 0}, refl = 0, transp = 0, ior = 0;
+  /// Sums of w * (nx, ny, nz, 1), w * (r, g, b, reflectivity) and w * (transparency, ior, 0, 0)
+  /// over the voxel's parts (w = area), updated one vector each (each lane rounds as the scalar
+  /// sum would); lane 3 of `nw` is the total weight.
+  Double4u nw = {0, 0, 0, 0}, col = {0, 0, 0, 0}, ti = {0, 0, 0, 0};
   uint32_t count = 0;
   float best_area = -1.0f;
   uint32_t best_tri = 0;
@@ -356,7 +368,7 @@ Estimate estimate(const VoxelizeInput& in, const std::vector<LatticePoint>& lat,
             + 2.0 * e.voxel_bound * per_voxel                       // brick outputs + the set
             + c.threads * brick_voxels * (sizeof(uint32_t) + (o.attributes ? sizeof(Slot) : 4.0));
   if (o.attributes)  // pair records and clipped polygons of the bricks in flight
-    e.bytes += std::min(e.pair_bound, c.threads * brick_voxels * 8.0) * (sizeof(PairRec) + 9 * 3 * sizeof(float));
+    e.bytes += std::min(e.pair_bound, c.threads * brick_voxels * 8.0) * (sizeof(PairRec) + 9 * sizeof(Float4));
   return e;
 }
 
@@ -461,9 +473,6 @@ Tests make_tests(const VoxelStrategy& s, int depth) {
 /// 9 vertices; splits keep at most kPolyMax (more only arise from rounding, never in practice)
 /// and have room for two writes per input vertex, so they write without checks.
 constexpr int kPolyMax = 12;
-/// A vertex (x, y, z, 0) in one vector, so a copy or an interpolation is one operation per half
-/// (SSE2) or one (AVX).
-typedef double Vertex4 __attribute__((vector_size(32)));
 struct Poly {
   int n = 0;
   Vertex4 p[2 * kPolyMax + 2];
@@ -560,6 +569,18 @@ const TriangleAttributes& attributes_of(const VoxelizeInput& in, size_t t) {
   return in.attributes.empty() ? kDefault : in.attributes[t];
 }
 
+/// A triangle's numbers as the vectors Slot sums: (nx, ny, nz, \p one), (r, g, b, reflectivity),
+/// (transparency, ior, 0, 0). The floats are converted from a float vector: GCC 12 was seen to
+/// skip the rounding to float of an inlined unit_normal() when its components initialise a
+/// double vector directly, which changes the sums' last bits.
+inline void triangle_vectors(const Vec3& n, const TriangleAttributes& a, Vertex4& nw, Vertex4& col, Vertex4& ti, float one) {
+  Float4 f[3] = {{n.x, n.y, n.z, one}, {a.colour.x, a.colour.y, a.colour.z, a.reflectivity}, {a.transparency, a.ior, 0.0f, 0.0f}};
+  asm("" : "+m"(f));  // the floats are stored as floats (see above)
+  nw = __builtin_convertvector(f[0], Vertex4);
+  col = __builtin_convertvector(f[1], Vertex4);
+  ti = __builtin_convertvector(f[2], Vertex4);
+}
+
 /// The part of the current triangle inside one leaf voxel of its range.
 struct Cell {
   uint32_t first = 0;   ///< first vertex in Scratch::verts (relative to the voxel's minimum corner)
@@ -576,7 +597,7 @@ struct Scratch {
   std::vector<uint32_t> sorted;   ///< touched, in increasing order
   std::vector<Slot> slots;
   std::vector<PairRec> pairs;
-  std::vector<std::array<float, 3>> verts;  ///< the first nverts are in use
+  std::vector<Float4> verts;  ///< the first nverts are in use: (x, y, z, 0)
   size_t nverts = 0;
   /// The current triangle's parts per leaf voxel of its bounding-box range in the brick.
   std::vector<Cell> cells;
@@ -651,8 +672,9 @@ void process_brick(const Context& cx, uint64_t brick, const BinEntry* first, con
   s.nverts = 0;
 
   uint32_t cur_tri = 0;
-  Vec3 cur_normal;
-  const TriangleAttributes* cur_attrs = nullptr;
+  // The current triangle's (nx, ny, nz, 1), (r, g, b, reflectivity), (transparency, ior, 0, 0).
+  Vertex4 cur_nw{}, cur_col{}, cur_ti{};
+  size_t zero_area_pairs = 0;  // a voxel can only lack weight if some pair has none
   uint32_t r0[3] = {0, 0, 0}, r1[3] = {0, 0, 0};  // the current triangle's leaf range in the brick
   uint32_t rn[3] = {0, 0, 0};
   auto cell_of = [&](uint32_t X, uint32_t Y, uint32_t Z) -> const Cell& {
@@ -675,20 +697,12 @@ void process_brick(const Context& cx, uint64_t brick, const BinEntry* first, con
     if (!attrs) return;
     const Cell& cell = part ? *part : cell_of(X, Y, Z);
     const float area = cell.area;
-    const Vec3& nrm = cur_normal;
-    const TriangleAttributes& a = *cur_attrs;
     Slot& sl = s.slots[slot];
     const double w = area;
-    sl.w += w;
-    sl.n[0] += w * nrm.x;
-    sl.n[1] += w * nrm.y;
-    sl.n[2] += w * nrm.z;
-    sl.col[0] += w * a.colour.x;
-    sl.col[1] += w * a.colour.y;
-    sl.col[2] += w * a.colour.z;
-    sl.refl += w * a.reflectivity;
-    sl.transp += w * a.transparency;
-    sl.ior += w * a.ior;
+    zero_area_pairs += area == 0.0f;
+    sl.nw += w * cur_nw;
+    sl.col += w * cur_col;
+    sl.ti += w * cur_ti;
     ++sl.count;
     if (area > sl.best_area) {
       sl.best_area = area;
@@ -727,18 +741,18 @@ void process_brick(const Context& cx, uint64_t brick, const BinEntry* first, con
           const int m = q.n;
           if (s.nverts + static_cast<size_t>(m) > s.verts.size()) s.verts.resize(std::max<size_t>(2 * s.verts.size(), 4096));
           cell.first = static_cast<uint32_t>(s.nverts);
-          std::array<float, 3>* dst = s.verts.data() + s.nverts;
+          Float4* dst = s.verts.data() + s.nverts;
           s.nverts += static_cast<size_t>(m);
           cell.count = static_cast<uint16_t>(m);
           cell.area = m >= 3 ? static_cast<float>(std::fabs(projected_area2(q, pu, pv)) * area_scale) : 0.0f;
           // Vertices relative to the voxel's minimum corner, and their average for the
           // certificate that the part meets the voxel's interior.
-          const double o[3] = {lo[0] + ix, lo[1] + iy, lo[2] + iz};
-          double sum[3] = {0, 0, 0};
+          const Vertex4 o = {lo[0] + ix, lo[1] + iy, lo[2] + iz, 0.0};
+          Vertex4 sum = {0, 0, 0, 0};
           for (int i = 0; i < m; ++i) {
-            const double v[3] = {q.p[i][0] - o[0], q.p[i][1] - o[1], q.p[i][2] - o[2]};
-            dst[i] = {static_cast<float>(v[0]), static_cast<float>(v[1]), static_cast<float>(v[2])};
-            sum[0] += v[0], sum[1] += v[1], sum[2] += v[2];
+            const Vertex4 v = q.p[i] - o;
+            dst[i] = __builtin_convertvector(v, Float4);
+            sum += v;
           }
           const double lo_sum = kInsideMargin * m, hi_sum = (1.0 - kInsideMargin) * m;
           cell.inside = sum[0] > lo_sum && sum[0] < hi_sum && sum[1] > lo_sum && sum[1] < hi_sum &&
@@ -772,8 +786,7 @@ void process_brick(const Context& cx, uint64_t brick, const BinEntry* first, con
     }
     if (empty) continue;
     if (attrs) {
-      cur_normal = unit_normal(cx.in, cur_tri);
-      cur_attrs = &attributes_of(cx.in, cur_tri);
+      triangle_vectors(unit_normal(cx.in, cur_tri), attributes_of(cx.in, cur_tri), cur_nw, cur_col, cur_ti, 1.0f);
       cut_parts(t);
     }
     if (octree) {
@@ -867,27 +880,21 @@ void process_brick(const Context& cx, uint64_t brick, const BinEntry* first, con
   if (attrs) {
     // Voxels the triangles only touch (every part has zero area): unweighted sums instead, in
     // the same (triangle) order.
-    for (const PairRec& p : s.pairs) {
+    for (const PairRec& p : zero_area_pairs > 0 ? std::span<const PairRec>(s.pairs) : std::span<const PairRec>()) {
       Slot& sl = s.slots[p.slot];
-      if (sl.w > 0.0) continue;
-      const Vec3 nrm = unit_normal(cx.in, p.tri);
-      const TriangleAttributes& a = attributes_of(cx.in, p.tri);
-      sl.n[0] += nrm.x;
-      sl.n[1] += nrm.y;
-      sl.n[2] += nrm.z;
-      sl.col[0] += a.colour.x;
-      sl.col[1] += a.colour.y;
-      sl.col[2] += a.colour.z;
-      sl.refl += a.reflectivity;
-      sl.transp += a.transparency;
-      sl.ior += a.ior;
+      if (sl.nw[3] > 0.0) continue;
+      Vertex4 nw, col, ti;  // lane 3 of nw 0: the weight stays 0
+      triangle_vectors(unit_normal(cx.in, p.tri), attributes_of(cx.in, p.tri), nw, col, ti, 0.0f);
+      sl.nw += nw;
+      sl.col += col;
+      sl.ti += ti;
     }
     for (Slot& sl : s.slots) {
-      const bool weighted = sl.w > 0.0;
-      const double* nn = sl.n;
+      const bool weighted = sl.nw[3] > 0.0;
+      const double nn[3] = {sl.nw[0], sl.nw[1], sl.nw[2]};
 
       const double len = std::sqrt(nn[0] * nn[0] + nn[1] * nn[1] + nn[2] * nn[2]);
-      const double scale = weighted ? sl.w : static_cast<double>(sl.count);
+      const double scale = weighted ? sl.nw[3] : static_cast<double>(sl.count);
       double nv3[3] = {0, 0, 1};
       if (len > 1e-9 * scale) {
         for (int k = 0; k < 3; ++k) nv3[k] = nn[k] / len;
@@ -901,10 +908,12 @@ void process_brick(const Context& cx, uint64_t brick, const BinEntry* first, con
     }
     for (const PairRec& p : s.pairs) {
       Slot& sl = s.slots[p.slot];
-      const double n0 = sl.normal[0], n1 = sl.normal[1], n2 = sl.normal[2];
+      // d = n0 (v0 - 0.5) + n1 (v1 - 0.5) + n2 (v2 - 0.5): the products in one vector.
+      const Vertex4 nrm = {sl.normal[0], sl.normal[1], sl.normal[2], 0.0};
+      const Vertex4 half = {0.5, 0.5, 0.5, 0.5};
       for (uint32_t i = 0; i < p.vcount; ++i) {
-        const auto& v = s.verts[p.vfirst + i];
-        const double d = n0 * (v[0] - 0.5) + n1 * (v[1] - 0.5) + n2 * (v[2] - 0.5);
+        const Vertex4 prod = (__builtin_convertvector(s.verts[p.vfirst + i], Vertex4) - half) * nrm;
+        const double d = prod[0] + prod[1] + prod[2];
         sl.cmin = std::min(sl.cmin, d);
         sl.cmax = std::max(sl.cmax, d);
       }
@@ -915,14 +924,14 @@ void process_brick(const Context& cx, uint64_t brick, const BinEntry* first, con
     for (size_t i = 0; i < nv; ++i) {
       const Slot& sl = s.slots[s.slot_of[sorted[i]]];
       VoxelAttributes a;
-      const bool weighted = sl.w > 0.0;
-      const double inv = 1.0 / (weighted ? sl.w : static_cast<double>(sl.count));
-      const double* col = sl.col;
+      const bool weighted = sl.nw[3] > 0.0;
+      const double inv = 1.0 / (weighted ? sl.nw[3] : static_cast<double>(sl.count));
+      const double col[3] = {sl.col[0], sl.col[1], sl.col[2]};
       a.normal = {sl.normal[0], sl.normal[1], sl.normal[2]};
       a.colour = {static_cast<float>(col[0] * inv), static_cast<float>(col[1] * inv), static_cast<float>(col[2] * inv)};
-      a.reflectivity = static_cast<float>(sl.refl * inv);
-      a.transparency = static_cast<float>(sl.transp * inv);
-      a.ior = static_cast<float>(sl.ior * inv);
+      a.reflectivity = static_cast<float>(sl.col[3] * inv);
+      a.transparency = static_cast<float>(sl.ti[0] * inv);
+      a.ior = static_cast<float>(sl.ti[1] * inv);
       a.material = attributes_of(cx.in, sl.best_tri).material;
       // Contours in world units; widened by 1e-5 voxel for the rounding of clipping.
       const double half = 0.5 * (std::fabs(static_cast<double>(sl.normal[0])) + std::fabs(static_cast<double>(sl.normal[1])) +
