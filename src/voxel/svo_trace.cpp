@@ -348,7 +348,8 @@ class SvoTraversal {
       return;
     }
     PacketRays p;
-    LocalRay rl[16];
+    LocalRay coarse[16];      // the lanes' rays in the lod level's frame (shift > 0 only)
+    const LocalRay* rl[16];   // each lane's ray for the leaf tests
     uint32_t idx[16];
     for (uint32_t begin = 0, octant_end = 0; begin < valid; begin = std::min(begin + static_cast<uint32_t>(width), octant_end)) {
       // Packets never straddle two octants.
@@ -371,11 +372,18 @@ class SvoTraversal {
         }
         p.tmin[j] = r.tmin;
         p.tmax[j] = r.tmax;
-        if (j < static_cast<int>(n)) rl[j] = v.shift > 0 ? voxel::coarsen(r, v.shift) : r;
+        if (j < static_cast<int>(n)) {
+          if (v.shift > 0) {
+            coarse[j] = voxel::coarsen(r, v.shift);
+            rl[j] = &coarse[j];
+          } else {
+            rl[j] = &r;
+          }
+        }
       }
       const uint32_t lanes = n >= 32 ? ~0u : (1u << n) - 1u;
       const auto leaf = [&](int j, const uint32_t* cell, uint32_t child) {
-        return lane_leaf(idx[j], rl[j], cell, v.attrs(child), v.prim(child));
+        return lane_leaf(idx[j], *rl[j], cell, v.attrs(child), v.prim(child));
       };
       const auto scalar = [&](int j, int level, const int32_t* c, uint32_t node) {
         return walk_node<kStats>(v, local[idx[j]], level, c, node, stats, [&](const uint32_t* cell, uint32_t child) {
