@@ -325,7 +325,14 @@ class SvoTraversal {
       start[k] = sum;
       sum += count[k];
     }
-    for (size_t i = 0; i < rays.size(); ++i) order[start[local[i].mirror]++] = static_cast<uint32_t>(i);
+    if (count[local[0].mirror] == rays.size()) {
+      // One octant (the usual case for a tile's primary rays): the order is the batch's own,
+      // without the counting sort's chain of read-modify-writes on start[].
+      for (size_t i = 0; i < rays.size(); ++i) order[i] = static_cast<uint32_t>(i);
+      start[local[0].mirror] += static_cast<uint32_t>(rays.size());
+    } else {
+      for (size_t i = 0; i < rays.size(); ++i) order[start[local[i].mirror]++] = static_cast<uint32_t>(i);
+    }
     const uint32_t valid = start[7];  // after the loop start[k] is the end of octant k
 
     const int width = s.grid_.depth == 0 ? 1 : voxel::svo_packet_width();
