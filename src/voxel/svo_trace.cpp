@@ -325,7 +325,14 @@ class SvoTraversal {
       start[k] = sum;
       sum += count[k];
     }
-    for (size_t i = 0; i < rays.size(); ++i) order[start[local[i].mirror]++] = static_cast<uint32_t>(i);
+    if (count[local[0].mirror] == rays.size()) {
+      // One octant (the usual case for a tile's primary rays): the order is the batch's own,
+      // without the counting sort's chain of read-modify-writes on start[].
+      for (size_t i = 0; i < rays.size(); ++i) order[i] = static_cast<uint32_t>(i);
+      start[local[0].mirror] += static_cast<uint32_t>(rays.size());
+    } else {
+      for (size_t i = 0; i < rays.size(); ++i) order[start[local[i].mirror]++] = static_cast<uint32_t>(i);
+    }
     const uint32_t valid = start[7];  // after the loop start[k] is the end of octant k
 
     const int width = s.grid_.depth == 0 ? 1 : voxel::svo_packet_width();
@@ -348,7 +355,8 @@ class SvoTraversal {
       return;
     }
     PacketRays p;
-    LocalRay rl[16];
+    LocalRay coarse[16];      // the lanes' rays in the lod level's frame (shift > 0 only)
+    const LocalRay* rl[16];   // each lane's ray for the leaf tests
     uint32_t idx[16];
     for (uint32_t begin = 0, octant_end = 0; begin < valid; begin = std::min(begin + static_cast<uint32_t>(width), octant_end)) {
       // Packets never straddle two octants.
@@ -371,11 +379,18 @@ class SvoTraversal {
         }
         p.tmin[j] = r.tmin;
         p.tmax[j] = r.tmax;
-        if (j < static_cast<int>(n)) rl[j] = v.shift > 0 ? voxel::coarsen(r, v.shift) : r;
+        if (j < static_cast<int>(n)) {
+          if (v.shift > 0) {
+            coarse[j] = voxel::coarsen(r, v.shift);
+            rl[j] = &coarse[j];
+          } else {
+            rl[j] = &r;
+          }
+        }
       }
       const uint32_t lanes = n >= 32 ? ~0u : (1u << n) - 1u;
       const auto leaf = [&](int j, const uint32_t* cell, uint32_t child) {
-        return lane_leaf(idx[j], rl[j], cell, v.attrs(child), v.prim(child));
+        return lane_leaf(idx[j], *rl[j], cell, v.attrs(child), v.prim(child));
       };
       const auto scalar = [&](int j, int level, const int32_t* c, uint32_t node) {
         return walk_node<kStats>(v, local[idx[j]], level, c, node, stats, [&](const uint32_t* cell, uint32_t child) {
