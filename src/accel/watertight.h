@@ -35,25 +35,30 @@ struct WatertightRay {
   float sx = 0, sy = 0, sz = 0;  ///< shear (sx, sy) and scale (sz)
 
   explicit SPECULA_ACCEL_INLINE WatertightRay(const Ray& ray) {
-    const Vec3 a = abs(ray.dir);
-    kz = (a.x >= a.y && a.x >= a.z) ? 0 : (a.y >= a.z ? 1 : 2);
-    kx = kz == 2 ? 0 : kz + 1;
-    ky = kx == 2 ? 0 : kx + 1;
+    // Branch-free: the dominant axis of a bounce ray is random, and the compare-and-branch
+    // chains (plus Vec3::operator[]'s selects) mispredicted about once per ray. The axes are
+    // chosen by the same comparisons as before and the components are read by index.
+    static_assert(sizeof(Vec3) == 3 * sizeof(float), "Vec3 must be three packed floats");
+    float o[3], d[3];
+    __builtin_memcpy(o, &ray.org, sizeof o);
+    __builtin_memcpy(d, &ray.dir, sizeof d);
+    const float ax = std::fabs(d[0]), ay = std::fabs(d[1]), az = std::fabs(d[2]);
+    const int not_x = static_cast<int>(!(ax >= ay && ax >= az));
+    kz = not_x + static_cast<int>(not_x != 0 && !(ay >= az));
+    const int nx = kz == 2 ? 0 : kz + 1, ny = nx == 2 ? 0 : nx + 1;
     // Swapping kx and ky preserves the triangle's winding when the dominant component is
     // negative (the paper's footnote); it keeps the sign of det meaningful.
-    if (ray.dir[kz] < 0.0f) {
-      const int tmp = kx;
-      kx = ky;
-      ky = tmp;
-    }
-    ox = ray.org[kx];
-    oy = ray.org[ky];
-    oz = ray.org[kz];
+    const bool neg = d[kz] < 0.0f;
+    kx = neg ? ny : nx;
+    ky = neg ? nx : ny;
+    ox = o[kx];
+    oy = o[ky];
+    oz = o[kz];
     // For a zero or NaN direction these are NaN/inf; every comparison below is written so that
     // NaN rejects, so such rays simply miss.
-    sz = 1.0f / ray.dir[kz];
-    sx = ray.dir[kx] * sz;
-    sy = ray.dir[ky] * sz;
+    sz = 1.0f / d[kz];
+    sx = d[kx] * sz;
+    sy = d[ky] * sz;
   }
 };
 
