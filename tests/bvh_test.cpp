@@ -169,6 +169,24 @@ TEST(BvhOracle, BuildOptionsDoNotChangeResults) {
   expect_matches_brute(soup.input(), rays, "soup traversal cost 8", tc);
 }
 
+// The single-ray kernels take the slab test's near/far plane offsets from a table row chosen by
+// the direction's signs: every row (octant) against brute force, in every kernel.
+TEST(BvhOracle, EveryDirectionOctantMatchesBruteForce) {
+  const Mesh sphere = test::make_sphere(16, 32, 1.5f, {0.2f, -0.1f, 0.3f});
+  const std::vector<Ray> base = test::make_oracle_rays(sphere.bounds(), sphere.positions, 3000, 21);
+  BvhOptions o;
+  o.packets = false;
+  for (unsigned octant = 0; octant < 8; ++octant) {
+    std::vector<Ray> rays = base;
+    for (Ray& r : rays) {
+      r.dir.x = (octant & 1u) ? -std::fabs(r.dir.x) : std::fabs(r.dir.x);
+      r.dir.y = (octant & 2u) ? -std::fabs(r.dir.y) : std::fabs(r.dir.y);
+      r.dir.z = (octant & 4u) ? -std::fabs(r.dir.z) : std::fabs(r.dir.z);
+    }
+    expect_matches_brute(sphere.input(), rays, "sphere octant " + std::to_string(octant), o);
+  }
+}
+
 class BvhOracleMesh : public ::testing::TestWithParam<const char*> {};
 
 TEST_P(BvhOracleMesh, HundredThousandRaysMatchBruteForce) {

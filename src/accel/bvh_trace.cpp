@@ -74,6 +74,7 @@ SPECULA_ACCEL_INLINE int finite_xyz(__m128 a) {
 /// The three reciprocals are one SSE division (the same IEEE quotients as three scalar ones).
 struct BoxRay {
   float sox, soy, soz, srx, sry, srz;  ///< origin and reciprocal direction
+  unsigned signs;  ///< bit a: !(reciprocal a >= 0), the slab test's near plane of axis a is the max
   bool zero_component;  ///< some direction component is +-0 (or denormal): rcp infinite
 
   explicit SPECULA_ACCEL_INLINE BoxRay(const Ray& ray) {
@@ -82,6 +83,7 @@ struct BoxRay {
     alignas(16) float r[4];
     _mm_store_ps(r, rcp);
     srx = r[0], sry = r[1], srz = r[2];
+    signs = static_cast<unsigned>(_mm_movemask_ps(_mm_cmpnge_ps(rcp, _mm_setzero_ps()))) & 7u;
     zero_component = finite_xyz(rcp) != 7;
   }
 };
