@@ -438,20 +438,42 @@ TEST(SvoPacket, EveryKernelEqualsBruteForceOnCoherentBundles) {
       brute->intersect(rays, ref);
       brute->intersect_skipping(rays, skip, ref_skip);
       brute->transmittance(rays, ref_tr);
+      // Passing through one voxel (skip_prim: the voxel a secondary ray leaves): every other ray
+      // skips the voxel it would hit first, and must hit something else (or nothing).
+      std::vector<uint32_t> leave(rays.size(), kNoHit);
+      for (size_t i = 0; i < rays.size(); i += 2) leave[i] = ref[i].prim;
+      std::vector<Hit> ref_leave(rays.size());
+      brute->intersect_skipping(rays, {}, ref_leave, nullptr, leave);
+      {  // the grid skips the same voxel
+        const std::unique_ptr<VoxelTracer> grid = build_voxel_tracer("grid", c.set, o);
+        std::vector<Hit> grid_leave(rays.size());
+        grid->intersect_skipping(rays, {}, grid_leave, nullptr, leave);
+        size_t differ = 0;
+        for (size_t i = 0; i < rays.size(); ++i) differ += same_hit(ref_leave[i], grid_leave[i]) ? 0 : 1;
+        EXPECT_EQ(differ, 0u) << c.name << " " << to_string(mode) << ": grid skipping the left voxel";
+      }
       SparseVoxelOctree svo = SparseVoxelOctree::build(c.set, o);
       for (const int width : {16, 8, 1}) {
         if (width > cpu && width != 1) continue;
         const PacketWidth limit(width);
         const std::string what = c.name + " " + to_string(mode) + " width " + std::to_string(width);
-        std::vector<Hit> hits(rays.size()), hits_skip(rays.size());
+        std::vector<Hit> hits(rays.size()), hits_skip(rays.size()), hits_leave(rays.size());
         std::vector<Vec3> tr(rays.size());
         TraceStats st;
         svo.intersect(rays, hits, &st);
         svo.intersect_skipping(rays, skip, hits_skip);
+        svo.intersect_skipping(rays, {}, hits_leave, nullptr, leave);
         svo.transmittance(rays, tr);
-        size_t bad = 0, bad_skip = 0, bad_tr = 0, hit_count = 0;
+        size_t bad = 0, bad_skip = 0, bad_tr = 0, bad_leave = 0, hit_count = 0, left = 0;
         for (size_t i = 0; i < rays.size(); ++i) {
           hit_count += hits[i].hit() ? 1 : 0;
+          if (!same_hit(ref_leave[i], hits_leave[i]) && ++bad_leave <= 3)
+            ADD_FAILURE() << what << " leaving " << leave[i] << ": " << describe(hits_leave[i]) << " vs brute "
+                          << describe(ref_leave[i]) << " for " << describe(rays[i]);
+          if (leave[i] != kNoHit) {
+            EXPECT_NE(hits_leave[i].prim, leave[i]) << what << ": hit the voxel it leaves, " << describe(rays[i]);
+            ++left;
+          }
           if (!same_hit(ref[i], hits[i]) && ++bad <= 3)
             ADD_FAILURE() << what << ": " << describe(hits[i]) << " vs brute " << describe(ref[i]) << " for " << describe(rays[i]);
           if (!same_hit(ref_skip[i], hits_skip[i]) && ++bad_skip <= 3)
@@ -463,6 +485,8 @@ TEST(SvoPacket, EveryKernelEqualsBruteForceOnCoherentBundles) {
         EXPECT_EQ(bad, 0u) << what;
         EXPECT_EQ(bad_skip, 0u) << what;
         EXPECT_EQ(bad_tr, 0u) << what;
+        EXPECT_EQ(bad_leave, 0u) << what;
+        EXPECT_GT(left, rays.size() / 20) << what;  // the skipping is exercised
         EXPECT_GT(hit_count, rays.size() / 10) << what;
         EXPECT_EQ(st.rays, rays.size()) << what;
         // One ray per call takes the single-ray path: the same answers.

@@ -85,7 +85,8 @@ class SparseVoxelOctree final : public VoxelTracer {
 
   std::string name() const override { return "svo"; }
   void intersect_skipping(std::span<const Ray> rays, std::span<const uint32_t> skip_material, std::span<Hit> hits,
-                          TraceStats* stats = nullptr) const override;
+                          TraceStats* stats = nullptr,
+                          std::span<const uint32_t> skip_prim = {}) const override;
   void transmittance(std::span<const Ray> rays, std::span<Vec3> out, TraceStats* stats = nullptr) const override;
   size_t memory_bytes() const override;
 

@@ -79,9 +79,12 @@ class VoxelTracer : public Tracer {
 
   /// intersect() for rays travelling inside a medium made of voxels (seed 001's rule): ray i
   /// passes through every voxel whose attributes' material equals skip_material[i] and stops
-  /// at the first voxel of another material. kNoHit (or an empty span) skips nothing.
+  /// at the first voxel of another material; and through voxel skip_prim[i] (a Hit::prim: the
+  /// voxel a secondary ray leaves, whose contour slab its origin may lie in). kNoHit (or an
+  /// empty span) skips nothing.
   virtual void intersect_skipping(std::span<const Ray> rays, std::span<const uint32_t> skip_material,
-                                  std::span<Hit> hits, TraceStats* stats = nullptr) const = 0;
+                                  std::span<Hit> hits, TraceStats* stats = nullptr,
+                                  std::span<const uint32_t> skip_prim = {}) const = 0;
   void intersect(std::span<const Ray> rays, std::span<Hit> hits, TraceStats* stats = nullptr) const override {
     intersect_skipping(rays, {}, hits, stats);
   }

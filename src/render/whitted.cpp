@@ -108,6 +108,10 @@ struct PathState {
   /// segments with the same history at neighbouring pixels are coherent rays (see TraceOrder).
   uint16_t history;
   MediumStack media;
+  /// The voxel (Hit::prim) this segment leaves, which it passes through (kNoHit: none; always
+  /// for triangles). Secondary rays start a few ulps off a voxel's surface, inside a contour
+  /// slab thicker than that: without this they would hit the same voxel again at tmin.
+  uint32_t leave = kNoHit;
 
   bool primary() const { return history == 1; }
 };
@@ -191,6 +195,7 @@ struct Scratch {
   std::vector<Vec3> accum;
   std::vector<uint64_t> cost;
   std::vector<uint32_t> skip;  ///< per ray: material of the voxel medium it is in (kNoHit: none)
+  std::vector<uint32_t> skip_prim;  ///< per ray: the voxel it leaves (PathState::leave)
   std::vector<uint32_t> shadow_key;  ///< per shadow ray: coherence key (history, light)
   std::vector<uint32_t> key;         ///< per wavefront ray: coherence key (history)
   TraceOrder trace_order;
@@ -454,7 +459,7 @@ Surface voxel_surface(const Context& ctx, const Ray& ray, const Hit& hit, ShadeM
 /// Shades one hit: emission, ambient and lights go to the pixel / shadow batch, mirror and
 /// refraction rays to the next wavefront.
 void shade_hit(const Context& ctx, Scratch& s, const Ray& ray, const PathState& seg, const Vec3& weight,
-               const Surface& sf) {
+               const Surface& sf, uint32_t leave) {
   const Vec3& p = sf.p;
   const Vec3 d = normalize(ray.dir);
   const Vec3& ng = sf.ng;
@@ -507,7 +512,7 @@ void shade_hit(const Context& ctx, Scratch& s, const Ray& ray, const PathState& 
       if (dot(r, ng_f) <= 0.0f) r = reflect(d, ng_f);  // keep it above the geometric surface
       s.next_rays.push_back(Ray{offset_ray_origin(p, ng_f), 0.0f, normalize(r), kInf});
       s.next_paths.push_back(PathState{w, seg.pixel, seg.global, static_cast<uint8_t>(seg.reflect_depth + 1),
-                                       seg.refract_depth, next_history(seg.history, 0), seg.media});
+                                       seg.refract_depth, next_history(seg.history, 0), seg.media, leave});
     }
   }
   if (refr_w > 0.0f && seg.refract_depth < ctx.max_refract) {
@@ -516,7 +521,7 @@ void shade_hit(const Context& ctx, Scratch& s, const Ray& ray, const PathState& 
       s.next_rays.push_back(Ray{offset_ray_origin(p, -ng_f), 0.0f, refr_dir, kInf});
       s.next_paths.push_back(PathState{w, seg.pixel, seg.global, seg.reflect_depth,
                                        static_cast<uint8_t>(seg.refract_depth + 1), next_history(seg.history, 1),
-                                       refr_media});
+                                       refr_media, leave});
     }
   }
 }
@@ -558,21 +563,25 @@ void render_tile(const Context& ctx, const SkyEval& sky, Scratch& s, const Pinho
   while (!s.rays.empty()) {
     const size_t n = s.rays.size();
     // Voxel media (seed 001): a ray inside a medium passes the voxels of that medium's material.
-    std::span<const uint32_t> skip;
+    std::span<const uint32_t> skip, skip_prim;
     if (ctx.voxels) {
       s.skip.resize(n);
-      bool any = false;
+      s.skip_prim.resize(n);
+      bool any = false, any_prim = false;
       for (size_t i = 0; i < n; ++i) {
         const int top = s.paths[i].media.top();
         s.skip[i] = top < 0 ? kNoHit : static_cast<uint32_t>(top);
+        s.skip_prim[i] = s.paths[i].leave;
         any = any || top >= 0;
+        any_prim = any_prim || s.paths[i].leave != kNoHit;
       }
       if (any) skip = s.skip;
+      if (any_prim) skip_prim = s.skip_prim;
     }
-    const auto trace = [&](std::span<const Ray> rays, std::span<const uint32_t> skips, std::span<Hit> hits,
-                           TraceStats* ts) {
-      if (!skips.empty())
-        ctx.voxels->intersect_skipping(rays, skips, hits, ts);
+    const auto trace = [&](std::span<const Ray> rays, std::span<const uint32_t> skips,
+                           std::span<const uint32_t> skip_prims, std::span<Hit> hits, TraceStats* ts) {
+      if (!skips.empty() || !skip_prims.empty())
+        ctx.voxels->intersect_skipping(rays, skips, hits, ts, skip_prims);
       else
         ctx.tracer.intersect(rays, hits, ts);
     };
@@ -582,6 +591,7 @@ void render_tile(const Context& ctx, const SkyEval& sky, Scratch& s, const Pinho
       for (size_t i = 0; i < n; ++i) {
         TraceStats ts;
         trace(std::span<const Ray>(&s.rays[i], 1), skip.empty() ? skip : skip.subspan(i, 1),
+              skip_prim.empty() ? skip_prim : skip_prim.subspan(i, 1),
               std::span<Hit>(&s.hits[i], 1), &ts);
         s.cost[s.paths[i].pixel] += ts.nodes_visited;
       }
@@ -599,12 +609,12 @@ void render_tile(const Context& ctx, const SkyEval& sky, Scratch& s, const Pinho
         s.sorted_rays.resize(n);
         s.sorted_hits.assign(n, Hit{});
         for (size_t j = 0; j < n; ++j) s.sorted_rays[j] = s.rays[order[j]];
-        trace(s.sorted_rays, {}, s.sorted_hits, nullptr);
+        trace(s.sorted_rays, {}, {}, s.sorted_hits, nullptr);
         s.hits.resize(n);  // every entry written below: `order` is a permutation
         for (size_t j = 0; j < n; ++j) s.hits[order[j]] = s.sorted_hits[j];
       } else {
         s.hits.assign(n, Hit{});
-        trace(s.rays, skip, s.hits, nullptr);
+        trace(s.rays, skip, skip_prim, s.hits, nullptr);
       }
     }
 
@@ -634,7 +644,7 @@ void render_tile(const Context& ctx, const SkyEval& sky, Scratch& s, const Pinho
       }
       if (max_component(weight) <= 0.0f) continue;
       const Surface sf = ctx.voxels ? voxel_surface(ctx, ray, hit, s.voxel_material) : triangle_surface(ctx, hit);
-      shade_hit(ctx, s, ray, seg, weight, sf);
+      shade_hit(ctx, s, ray, seg, weight, sf, ctx.voxels ? hit.prim : kNoHit);
       if (seg.primary() && ctx.want_normal) {
         Vec3 nrm = sf.ns != Vec3{} ? sf.ns : sf.ng;
         if (dot(nrm, ray.dir) > 0.0f) nrm = -nrm;  // facing the camera

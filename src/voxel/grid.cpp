@@ -162,16 +162,19 @@ class GridTraversal {
 };
 
 void VoxelGridTracer::intersect_skipping(std::span<const Ray> rays, std::span<const uint32_t> skip,
-                                         std::span<Hit> hits, TraceStats* stats) const {
+                                         std::span<Hit> hits, TraceStats* stats,
+                                         std::span<const uint32_t> skip_prim) const {
   if (hits.size() < rays.size()) throw Error("grid: hits span smaller than rays span");
   if (!skip.empty() && skip.size() < rays.size()) throw Error("grid: skip span smaller than rays span");
+  if (!skip_prim.empty() && skip_prim.size() < rays.size()) throw Error("grid: skip_prim span smaller than rays span");
   TraceStats local;
   for (size_t i = 0; i < rays.size(); ++i) {
     Hit hit;
     const uint32_t skip_material = skip.empty() ? kNoHit : skip[i];
+    const uint32_t skip_voxel = skip_prim.empty() ? kNoHit : skip_prim[i];
     const auto visit = [&](const LocalRay& r, const uint32_t* cell, const VoxelAttributes& attrs, uint32_t prim) {
       CellHit h;
-      if (attrs.material == skip_material || !voxel::hit_cell(r, cell, attrs, mode_, h)) return false;
+      if (attrs.material == skip_material || prim == skip_voxel || !voxel::hit_cell(r, cell, attrs, mode_, h)) return false;
       hit.t = h.t;
       hit.prim = prim;
       hit.ng = h.n;

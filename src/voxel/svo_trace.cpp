@@ -409,13 +409,15 @@ class SvoTraversal {
 
   template <bool kStats>
   static void closest(const SparseVoxelOctree& s, std::span<const Ray> rays, std::span<const uint32_t> skip,
-                      std::span<Hit> hits, TraceStats& stats) {
+                      std::span<const uint32_t> skip_prim, std::span<Hit> hits, TraceStats& stats) {
     for (size_t i = 0; i < rays.size(); ++i) hits[i] = Hit{};
     const VoxelHitMode mode = s.mode_;
     batch<kStats>(s, rays, stats, [&](uint32_t i, const LocalRay& r, const uint32_t* cell, const VoxelAttributes& attrs,
                                       uint32_t prim) {
       CellHit h;
-      if ((!skip.empty() && attrs.material == skip[i]) || !voxel::hit_cell(r, cell, attrs, mode, h)) return false;
+      if ((!skip.empty() && attrs.material == skip[i]) || (!skip_prim.empty() && prim == skip_prim[i]) ||
+          !voxel::hit_cell(r, cell, attrs, mode, h))
+        return false;
       Hit& hit = hits[i];
       hit.t = h.t;
       hit.prim = prim;
@@ -445,15 +447,17 @@ class SvoTraversal {
 };
 
 void SparseVoxelOctree::intersect_skipping(std::span<const Ray> rays, std::span<const uint32_t> skip,
-                                           std::span<Hit> hits, TraceStats* stats) const {
+                                           std::span<Hit> hits, TraceStats* stats,
+                                           std::span<const uint32_t> skip_prim) const {
   if (hits.size() < rays.size()) throw Error("svo: hits span smaller than rays span");
   if (!skip.empty() && skip.size() < rays.size()) throw Error("svo: skip span smaller than rays span");
+  if (!skip_prim.empty() && skip_prim.size() < rays.size()) throw Error("svo: skip_prim span smaller than rays span");
   TraceStats local;
   if (stats) {
-    SvoTraversal::closest<true>(*this, rays, skip, hits, local);
+    SvoTraversal::closest<true>(*this, rays, skip, skip_prim, hits, local);
     *stats += local;
   } else {
-    SvoTraversal::closest<false>(*this, rays, skip, hits, local);
+    SvoTraversal::closest<false>(*this, rays, skip, skip_prim, hits, local);
   }
 }
 

@@ -65,20 +65,24 @@ VoxelBruteTracer::VoxelBruteTracer(const VoxelSet& set, const VoxelTracerOptions
 }
 
 void VoxelBruteTracer::intersect_skipping(std::span<const Ray> rays, std::span<const uint32_t> skip,
-                                          std::span<Hit> hits, TraceStats* stats) const {
+                                          std::span<Hit> hits, TraceStats* stats,
+                                          std::span<const uint32_t> skip_prim) const {
   if (hits.size() < rays.size()) throw Error("voxel_brute: hits span smaller than rays span");
   if (!skip.empty() && skip.size() < rays.size()) throw Error("voxel_brute: skip span smaller than rays span");
+  if (!skip_prim.empty() && skip_prim.size() < rays.size())
+    throw Error("voxel_brute: skip_prim span smaller than rays span");
   TraceStats local;
   for (size_t r = 0; r < rays.size(); ++r) {
     Hit hit;
     const uint32_t skip_material = skip.empty() ? kNoHit : skip[r];
+    const uint32_t skip_voxel = skip_prim.empty() ? kNoHit : skip_prim[r];
     ++local.rays;
     LocalRay lr;
     if (make_local_ray(rays[r], grid_, lr)) {
       local.triangles_tested += cells_.size();
       for (size_t i = 0; i < cells_.size(); ++i) {
         CellHit h;
-        if (attrs_[i].material != skip_material && hit_cell(lr, cells_[i].c, attrs_[i], mode_, h) && h.t < hit.t) {
+        if (attrs_[i].material != skip_material && i != skip_voxel && hit_cell(lr, cells_[i].c, attrs_[i], mode_, h) && h.t < hit.t) {
           hit.t = h.t;
           hit.prim = static_cast<uint32_t>(i);
           hit.ng = h.n;
