@@ -163,6 +163,21 @@ struct TraceOrder {
     return true;
   }
 
+  /// Traces \p rays in `order` and scatters the results back: \p trace(sorted rays, sorted
+  /// results) fills one result per ray, \p out receives them in the rays' own positions.
+  /// \p sorted_rays and \p sorted_out are scratch.
+  template <class Result, class Trace>
+  void trace_in_order(const std::vector<Ray>& rays, std::vector<Ray>& sorted_rays, std::vector<Result>& sorted_out,
+                      std::vector<Result>& out, Trace&& trace) const {
+    const size_t n = order.size();
+    sorted_rays.resize(n);
+    sorted_out.assign(n, Result{});
+    for (size_t j = 0; j < n; ++j) sorted_rays[j] = rays[order[j]];
+    trace(std::span<const Ray>(sorted_rays), std::span<Result>(sorted_out));
+    out.resize(n);  // every entry written below: `order` is a permutation
+    for (size_t j = 0; j < n; ++j) out[order[j]] = sorted_out[j];
+  }
+
  private:
   std::vector<uint8_t> group_;
 };
@@ -605,13 +620,8 @@ void render_tile(const Context& ctx, const SkyEval& sky, Scratch& s, const Pinho
         reorder = s.trace_order.build(s.key);
       }
       if (reorder) {  // coherent rays side by side (TraceOrder; never for voxels: no skips)
-        const std::vector<uint32_t>& order = s.trace_order.order;
-        s.sorted_rays.resize(n);
-        s.sorted_hits.assign(n, Hit{});
-        for (size_t j = 0; j < n; ++j) s.sorted_rays[j] = s.rays[order[j]];
-        trace(s.sorted_rays, {}, {}, s.sorted_hits, nullptr);
-        s.hits.resize(n);  // every entry written below: `order` is a permutation
-        for (size_t j = 0; j < n; ++j) s.hits[order[j]] = s.sorted_hits[j];
+        s.trace_order.trace_in_order(s.rays, s.sorted_rays, s.sorted_hits, s.hits,
+                                     [&](std::span<const Ray> r, std::span<Hit> h) { trace(r, {}, {}, h, nullptr); });
       } else {
         s.hits.assign(n, Hit{});
         trace(s.rays, skip, skip_prim, s.hits, nullptr);
@@ -663,12 +673,8 @@ void render_tile(const Context& ctx, const SkyEval& sky, Scratch& s, const Pinho
           s.cost[s.shadow_pixel[i]] += ts.nodes_visited;
         }
       } else if (ctx.group_rays && s.trace_order.build(s.shadow_key)) {  // coherent rays side by side (TraceOrder)
-        const std::vector<uint32_t>& order = s.trace_order.order;
-        s.sorted_rays.resize(ns);
-        s.sorted_t.assign(ns, Vec3{});
-        for (size_t j = 0; j < ns; ++j) s.sorted_rays[j] = s.shadow_rays[order[j]];
-        ctx.tracer.transmittance(s.sorted_rays, s.sorted_t);
-        for (size_t j = 0; j < ns; ++j) s.shadow_t[order[j]] = s.sorted_t[j];
+        s.trace_order.trace_in_order(s.shadow_rays, s.sorted_rays, s.sorted_t, s.shadow_t,
+                                     [&](std::span<const Ray> r, std::span<Vec3> t) { ctx.tracer.transmittance(r, t); });
       } else {
         ctx.tracer.transmittance(s.shadow_rays, s.shadow_t);
       }
