@@ -780,6 +780,31 @@ TEST(SvoMemory, ProportionalToVoxelCount) {
               info.voxels, info.nodes, info.node_bytes_per_voxel, info.bytes_per_voxel);
 }
 
+// Skip spans shorter than the ray span are a caller's error: every voxel tracer refuses them
+// with a clear message instead of reading past their end.
+TEST(Svo, SkipSpansShorterThanTheRaysAreRejected) {
+  const VoxelSet set = random_set(dyadic_grid(4), 50, 9);
+  const std::vector<Ray> rays = make_rays(set, 8, 10);
+  const std::vector<uint32_t> short_span(rays.size() - 1, kNoHit), full(rays.size(), kNoHit);
+  std::vector<Hit> hits(rays.size());
+  for (const char* kind : {"svo", "grid", "voxel_brute"}) {
+    const std::unique_ptr<VoxelTracer> t = build_voxel_tracer(kind, set);
+    const auto message = [&](auto&& call) {
+      try {
+        call();
+      } catch (const Error& e) {
+        return std::string(e.what());
+      }
+      return std::string("no error");
+    };
+    EXPECT_NE(message([&] { t->intersect_skipping(rays, short_span, hits); }).find("skip span smaller"),
+              std::string::npos) << kind;
+    EXPECT_NE(message([&] { t->intersect_skipping(rays, {}, hits, nullptr, short_span); }).find("skip_prim span smaller"),
+              std::string::npos) << kind;
+    EXPECT_NO_THROW(t->intersect_skipping(rays, full, hits, nullptr, full)) << kind;  // the right length is fine
+  }
+}
+
 TEST(Svo, BuildRejectsInvalidSets) {
   VoxelSet ok = random_set(dyadic_grid(3), 20, 1);
   EXPECT_NO_THROW(SparseVoxelOctree::build(ok));
