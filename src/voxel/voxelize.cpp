@@ -523,7 +523,20 @@ inline void slabs(const Poly& poly, int axis, double lo, uint32_t count, Piece&&
     split(poly, axis, lo, buf[2], buf[0]);
     rest = &buf[0];
   }
-  for (uint32_t c = 0; c < count && rest->n > 0; ++c) {
+  // Slabs whose top lies strictly below the polygon: cutting there leaves an empty part below
+  // and the polygon unchanged above (every vertex has db > 0), so they are skipped without
+  // changing a bit. Pieces of the y and z sweeps start anywhere in the triangle's range, and
+  // those cuts were a third of all. The first slab is found from an estimate corrected by
+  // exact comparisons (lo + c + 1 is an integer, exact in a double); the last slab is never
+  // skipped (its cut also drops what lies beyond the range).
+  uint32_t c0 = 0;
+  if (mn > lo + 1.0) {
+    const double est = std::floor(mn - lo) - 1.0;
+    c0 = est >= static_cast<double>(count - 1) ? count - 1 : static_cast<uint32_t>(std::max(est, 0.0));
+    while (c0 > 0 && !(lo + static_cast<double>(c0) < mn)) --c0;
+    while (c0 + 1 < count && lo + static_cast<double>(c0) + 1.0 < mn) ++c0;
+  }
+  for (uint32_t c = c0; c < count && rest->n > 0; ++c) {
     const double top = lo + static_cast<double>(c) + 1.0;
     if (mx >= top && c + 1 < count) {
       split(*rest, axis, top, buf[2], buf[spare]);
