@@ -488,7 +488,10 @@ inline void split(const Poly& in, int axis, double c, Poly& below, Poly& above) 
   for (int i = 0; i < n; ++i) {
     const Vertex4& b = in.p[i];
     const double db = b[axis] - c;
-    if ((da < 0.0 && db > 0.0) || (da > 0.0 && db < 0.0)) {  // the edge a -> b crosses the plane
+    // The edge a -> b crosses the plane: da and db of strictly opposite signs, i.e. the
+    // smaller below 0 and the larger above (a min, a max and two comparisons, no branches
+    // between them; the same test as (da < 0 && db > 0) || (da > 0 && db < 0)).
+    if (std::min(da, db) < 0.0 && std::max(da, db) > 0.0) {
       const double t = da / (da - db);
       Vertex4 q = *a + (b - *a) * t;
       q[axis] = c;
