@@ -5,6 +5,7 @@
 
 #include <algorithm>
 #include <array>
+#include <cmath>
 #include <cstdlib>
 #include <cstring>
 #include <filesystem>
@@ -329,6 +330,143 @@ TEST(VoxelizeAttributes, ContoursEncloseClippedPartsOfATiltedTriangle) {
     ++checked;
   }
   EXPECT_EQ(checked, 20000);
+}
+
+/// The reference for a clipped part: the triangle cut by the closed box's 6 planes in turn
+/// (Sutherland-Hodgman in double), written independently of the voxelizer's slab sweeps.
+using P3 = std::array<double, 3>;
+std::vector<P3> clip_to_box(std::vector<P3> poly, const double lo[3], const double hi[3]) {
+  for (int k = 0; k < 3 && !poly.empty(); ++k)
+    for (int upper = 0; upper < 2 && !poly.empty(); ++upper) {
+      std::vector<P3> out;
+      const size_t n = poly.size();
+      for (size_t i = 0; i < n; ++i) {
+        const P3& a = poly[(i + n - 1) % n];
+        const P3& b = poly[i];
+        const double da = upper ? hi[k] - a[k] : a[k] - lo[k];  // >= 0 inside
+        const double db = upper ? hi[k] - b[k] : b[k] - lo[k];
+        if ((da < 0.0 && db > 0.0) || (da > 0.0 && db < 0.0)) {
+          const double t = da / (da - db);
+          out.push_back({a[0] + (b[0] - a[0]) * t, a[1] + (b[1] - a[1]) * t, a[2] + (b[2] - a[2]) * t});
+        }
+        if (db >= 0.0) out.push_back(b);
+      }
+      poly = std::move(out);
+    }
+  return poly;
+}
+
+double polygon_area(const std::vector<P3>& q) {
+  double c[3] = {0, 0, 0};
+  for (size_t i = 1; i + 1 < q.size(); ++i) {
+    const double e0[3] = {q[i][0] - q[0][0], q[i][1] - q[0][1], q[i][2] - q[0][2]};
+    const double e1[3] = {q[i + 1][0] - q[0][0], q[i + 1][1] - q[0][1], q[i + 1][2] - q[0][2]};
+    c[0] += e0[1] * e1[2] - e0[2] * e1[1];
+    c[1] += e0[2] * e1[0] - e0[0] * e1[2];
+    c[2] += e0[0] * e1[1] - e0[1] * e1[0];
+  }
+  return 0.5 * std::sqrt(c[0] * c[0] + c[1] * c[1] + c[2] * c[2]);
+}
+
+TEST(VoxelizeAttributes, ContoursAndAreaWeightsAgreeWithABruteForceClipInDouble) {
+  // Tilted triangles with random colours; every (triangle, voxel) pair of each triangle's
+  // bounding box is clipped by the reference above. Every reference vertex must lie between
+  // its voxel's contours, a part of any area must belong to a voxel of the set, and each
+  // voxel's colour and normal must be the averages weighted by the reference areas (so the
+  // voxelizer's part areas are right, up to rounding, whatever order it clips in).
+  std::mt19937 rng(11);
+  std::uniform_real_distribution<float> u(0.0f, 1.0f);
+  Mesh m;
+  for (int t = 0; t < 300; ++t) {
+    const Vec3 c{0.1f + 0.8f * u(rng), 0.1f + 0.8f * u(rng), 0.1f + 0.8f * u(rng)};
+    for (int i = 0; i < 3; ++i) {
+      m.indices.push_back(static_cast<uint32_t>(m.positions.size()));
+      m.positions.push_back(c + Vec3{u(rng) - 0.5f, u(rng) - 0.5f, u(rng) - 0.5f} * 0.2f);
+    }
+    TriangleAttributes a;
+    a.colour = {u(rng), u(rng), u(rng)};
+    m.attrs.push_back(a);
+  }
+  const int depth = 5;
+  const VoxelSet set = voxelize(m.input(), unit_options(depth));
+  ASSERT_GT(set.size(), 1000u);
+  const double side = set.grid.voxel_size();
+  const double origin[3] = {set.grid.origin.x, set.grid.origin.y, set.grid.origin.z};
+  const int64_t res = int64_t{1} << depth;
+  struct Sums {
+    double area = 0, col[3] = {0, 0, 0}, nrm[3] = {0, 0, 0};
+  };
+  std::vector<Sums> sums(set.size());
+  size_t parts = 0, vertices = 0;
+  for (size_t t = 0; t < m.indices.size() / 3; ++t) {
+    std::vector<P3> tri(3);
+    for (int i = 0; i < 3; ++i)
+      for (int k = 0; k < 3; ++k) tri[i][k] = m.positions[m.indices[3 * t + i]][k];
+    const double e0[3] = {tri[1][0] - tri[0][0], tri[1][1] - tri[0][1], tri[1][2] - tri[0][2]};
+    const double e1[3] = {tri[2][0] - tri[0][0], tri[2][1] - tri[0][1], tri[2][2] - tri[0][2]};
+    double n[3] = {e0[1] * e1[2] - e0[2] * e1[1], e0[2] * e1[0] - e0[0] * e1[2], e0[0] * e1[1] - e0[1] * e1[0]};
+    const double len = std::sqrt(n[0] * n[0] + n[1] * n[1] + n[2] * n[2]);
+    ASSERT_GT(len, 0.0);
+    for (double& x : n) x /= len;
+    int64_t lo[3], hi[3];
+    for (int k = 0; k < 3; ++k) {
+      const double a = std::min({tri[0][k], tri[1][k], tri[2][k]}), b = std::max({tri[0][k], tri[1][k], tri[2][k]});
+      lo[k] = std::max<int64_t>(0, static_cast<int64_t>(std::floor((a - origin[k]) / side)) - 1);
+      hi[k] = std::min<int64_t>(res - 1, static_cast<int64_t>(std::floor((b - origin[k]) / side)) + 1);
+    }
+    for (int64_t z = lo[2]; z <= hi[2]; ++z)
+      for (int64_t y = lo[1]; y <= hi[1]; ++y)
+        for (int64_t x = lo[0]; x <= hi[0]; ++x) {
+          const int64_t c[3] = {x, y, z};
+          double blo[3], bhi[3];
+          for (int k = 0; k < 3; ++k) {
+            blo[k] = origin[k] + static_cast<double>(c[k]) * side;
+            bhi[k] = blo[k] + side;
+          }
+          const std::vector<P3> part = clip_to_box(tri, blo, bhi);
+          if (part.empty()) continue;
+          const double area = polygon_area(part);
+          const uint64_t code = morton_encode(static_cast<uint32_t>(x), static_cast<uint32_t>(y), static_cast<uint32_t>(z));
+          const auto it = std::lower_bound(set.codes.begin(), set.codes.end(), code);
+          const bool found = it != set.codes.end() && *it == code;
+          if (!found) {  // only a touching part (rounding of the snap) may miss the set
+            EXPECT_LT(area, 1e-6 * side * side) << "triangle " << t << " voxel " << x << " " << y << " " << z;
+            continue;
+          }
+          const size_t i = static_cast<size_t>(it - set.codes.begin());
+          const VoxelAttributes& va = set.attrs[i];
+          const double centre[3] = {blo[0] + 0.5 * side, blo[1] + 0.5 * side, blo[2] + 0.5 * side};
+          for (const P3& p : part) {
+            const double d = va.normal.x * (p[0] - centre[0]) + va.normal.y * (p[1] - centre[1]) + va.normal.z * (p[2] - centre[2]);
+            EXPECT_GE(d, va.contour_lo - 1e-6 * side) << "triangle " << t << " voxel " << x << " " << y << " " << z;
+            EXPECT_LE(d, va.contour_hi + 1e-6 * side) << "triangle " << t << " voxel " << x << " " << y << " " << z;
+            ++vertices;
+          }
+          Sums& s = sums[i];
+          s.area += area;
+          const float* col = &m.attrs[t].colour.x;
+          for (int k = 0; k < 3; ++k) {
+            s.col[k] += area * col[k];
+            s.nrm[k] += area * n[k];
+          }
+          ++parts;
+        }
+  }
+  EXPECT_GT(vertices, 3 * parts);  // ~4 per part: mostly triangles and quadrilaterals
+  size_t weighted = 0;
+  for (size_t i = 0; i < set.size(); ++i) {
+    const Sums& s = sums[i];
+    if (s.area < 1e-3 * side * side) continue;  // weights of nearly touching parts: rounding decides
+    ++weighted;
+    const VoxelAttributes& va = set.attrs[i];
+    const float* col = &va.colour.x;
+    for (int k = 0; k < 3; ++k) EXPECT_NEAR(col[k], s.col[k] / s.area, 1e-4) << "voxel " << i;
+    const double len = std::sqrt(s.nrm[0] * s.nrm[0] + s.nrm[1] * s.nrm[1] + s.nrm[2] * s.nrm[2]);
+    if (len < 0.5 * s.area) continue;  // normals nearly cancel: the direction is ill-conditioned
+    const float* nv = &va.normal.x;
+    for (int k = 0; k < 3; ++k) EXPECT_NEAR(nv[k], s.nrm[k] / len, 1e-4) << "voxel " << i;
+  }
+  EXPECT_GT(weighted, set.size() / 2);
 }
 
 TEST(Voxelize, BitIdenticalForAnyThreadCount) {

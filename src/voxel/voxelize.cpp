@@ -488,7 +488,10 @@ inline void split(const Poly& in, int axis, double c, Poly& below, Poly& above) 
   for (int i = 0; i < n; ++i) {
     const Vertex4& b = in.p[i];
     const double db = b[axis] - c;
-    if ((da < 0.0 && db > 0.0) || (da > 0.0 && db < 0.0)) {  // the edge a -> b crosses the plane
+    // The edge a -> b crosses the plane: da and db of strictly opposite signs, i.e. the
+    // smaller below 0 and the larger above (a min, a max and two comparisons, no branches
+    // between them; the same test as (da < 0 && db > 0) || (da > 0 && db < 0)).
+    if (std::min(da, db) < 0.0 && std::max(da, db) > 0.0) {
       const double t = da / (da - db);
       Vertex4 q = *a + (b - *a) * t;
       q[axis] = c;
@@ -523,7 +526,20 @@ inline void slabs(const Poly& poly, int axis, double lo, uint32_t count, Piece&&
     split(poly, axis, lo, buf[2], buf[0]);
     rest = &buf[0];
   }
-  for (uint32_t c = 0; c < count && rest->n > 0; ++c) {
+  // Slabs whose top lies strictly below the polygon: cutting there leaves an empty part below
+  // and the polygon unchanged above (every vertex has db > 0), so they are skipped without
+  // changing a bit. Pieces of the y and z sweeps start anywhere in the triangle's range, and
+  // those cuts were a third of all. The first slab is found from an estimate corrected by
+  // exact comparisons (lo + c + 1 is an integer, exact in a double); the last slab is never
+  // skipped (its cut also drops what lies beyond the range).
+  uint32_t c0 = 0;
+  if (mn > lo + 1.0) {
+    const double est = std::floor(mn - lo) - 1.0;
+    c0 = est >= static_cast<double>(count - 1) ? count - 1 : static_cast<uint32_t>(std::max(est, 0.0));
+    while (c0 > 0 && !(lo + static_cast<double>(c0) < mn)) --c0;
+    while (c0 + 1 < count && lo + static_cast<double>(c0) + 1.0 < mn) ++c0;
+  }
+  for (uint32_t c = c0; c < count && rest->n > 0; ++c) {
     const double top = lo + static_cast<double>(c) + 1.0;
     if (mx >= top && c + 1 < count) {
       split(*rest, axis, top, buf[2], buf[spare]);
