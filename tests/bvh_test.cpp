@@ -377,6 +377,31 @@ void check_wide_layout(const Bvh& bvh, std::span<const Node> wide, size_t n) {
     }
     EXPECT_EQ(visited, wide.size());
     EXPECT_TRUE(std::all_of(in_wide.begin(), in_wide.end(), [](int c) { return c == 1; }));
+    // Every interior child's box contains the exact box of its subtree's triangles (what a
+    // compressed layout with rounded boxes must keep too): nodes come after their parent, so
+    // one backward pass.
+    std::vector<Aabb> exact(wide.size());
+    for (size_t k = wide.size(); k-- > 0;) {
+      const Node& w = wide[k];
+      for (int i = 0; i < Node::kWidth; ++i) {
+        if (w.b[0][0][i] > w.b[1][0][i]) continue;  // empty slot
+        Aabb child;
+        if (w.count[i] > 0) {
+          for (uint32_t j = 0; j < w.count[i]; ++j) {
+            const BvhTriangle4& blk = bvh.triangle_blocks()[w.child[i] + j / 4];
+            for (int v = 0; v < 3; ++v) child.grow({blk.v[v][0][j % 4], blk.v[v][1][j % 4], blk.v[v][2][j % 4]});
+          }
+        } else {
+          ASSERT_GT(w.child[i], k) << "children follow their parent";
+          child = exact[w.child[i]];
+        }
+        for (int a = 0; a < 3; ++a) {
+          EXPECT_LE(w.b[0][a][i], child.min[a]) << "node " << k << " child " << i << " axis " << a;
+          EXPECT_GE(w.b[1][a][i], child.max[a]) << "node " << k << " child " << i << " axis " << a;
+        }
+        exact[k].grow(child);
+      }
+    }
   }
 }
 
@@ -805,6 +830,38 @@ TEST(BvhRobustness, SpanSizeMismatchThrows) {
     std::vector<Vec3> tr(1);
     EXPECT_THROW(t->intersect(rays, hits), Error);
     EXPECT_THROW(t->transmittance(rays, tr), Error);
+  }
+}
+
+// Leaves of hundreds of triangles (more than a compressed child word could count), and flat
+// axis-aligned geometry far from the origin and tiny: the wide layouts keep their invariants
+// and every kernel its results.
+TEST(BvhStructure, BigLeavesFlatAndFarGeometryMatchBruteForce) {
+  BvhOptions big_leaves;
+  big_leaves.max_leaf_size = 600;
+  big_leaves.traversal_cost = 1000.0f;  // one leaf per subtree up to 600 triangles
+  const Mesh soup = test::make_soup(3000, 41);
+  for (const BvhKernel kernel : test_kernels()) {
+    BvhOptions o = big_leaves;
+    o.kernel = kernel;
+    const Bvh bvh = Bvh::build(soup.input(), o);
+    check_invariants(bvh, soup.input(), o);
+    uint32_t largest = 0;
+    for (const BvhNode& nd : bvh.nodes()) largest = std::max(largest, nd.count);
+    EXPECT_GT(largest, 255u) << "the test needs leaves of hundreds of triangles";
+  }
+  expect_matches_brute(soup.input(), test::make_oracle_rays(soup.bounds(), soup.positions, 6000, 42), "big leaves",
+                       big_leaves);
+  // A flat grid far from the origin (child boxes flat in y), and the same grid scaled tiny.
+  for (const float s : {1.0f, 1e-6f}) {
+    Mesh grid = test::make_grid(40, 0.5f * s, 1e5f * s, -3e5f * s, 7.0f * s);
+    for (const BvhKernel kernel : test_kernels()) {
+      BvhOptions o;
+      o.kernel = kernel;
+      check_invariants(Bvh::build(grid.input(), o), grid.input(), o);
+    }
+    expect_matches_brute(grid.input(), test::make_oracle_rays(grid.bounds(), grid.positions, 6000, 43),
+                         "far flat grid " + std::to_string(s));
   }
 }
 
