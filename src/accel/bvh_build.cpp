@@ -1109,8 +1109,10 @@ Bvh Bvh::build(const TriangleInput& input, const BvhOptions& options, BuildInfo*
     }
   }
 
-  // 5. Figures: node/leaf counts, depth and the SAH cost (root-area normalised), summed in
-  //    depth-first order so the figures do not depend on the node numbering (thread count).
+  // 5. Figures: node/leaf counts, depth and the SAH cost (root-area normalised), in one pass
+  //    over the node array (parents come before their children; the array is the same for any
+  //    thread count, so the sums are too). A depth-first walk with a stack cost 2-3% of the
+  //    bunny build.
   BuildInfo& bi = bvh.info_;
   const size_t m = bvh.prim_ids_.size();
   bi.nodes = m == 0 ? 1 : bvh.nodes_.size() - 1;  // minus the padding node
@@ -1124,19 +1126,21 @@ Bvh Bvh::build(const TriangleInput& input, const BvhOptions& options, BuildInfo*
   double sah = 0.0;
   size_t leaves = 0;
   uint32_t max_depth = 0;
-  std::vector<std::pair<uint32_t, uint32_t>> stack{{0u, 0u}};
-  while (!stack.empty()) {
-    const auto [index, depth] = stack.back();
-    stack.pop_back();
-    const BvhNode& nd = bvh.nodes_[index];
-    max_depth = std::max(max_depth, depth);
-    if (nd.is_leaf() || m == 0) {
-      ++leaves;
-      sah += half_area(nd) * nd.count;
-    } else {
-      sah += half_area(nd) * tc;
-      stack.push_back({nd.left_first + 1, depth + 1});
-      stack.push_back({nd.left_first, depth + 1});
+  {
+    // The references' scratch is free now and holds at least 8 bytes per node.
+    uint32_t* const depth = static_cast<uint32_t*>(scratch->get(0, sizeof(uint32_t) * bvh.nodes_.size()));
+    depth[0] = 0;
+    for (size_t j = 0; j < bvh.nodes_.size(); ++j) {
+      if (j == 1) continue;  // padding
+      const BvhNode& nd = bvh.nodes_[j];
+      max_depth = std::max(max_depth, depth[j]);
+      if (nd.is_leaf() || m == 0) {
+        ++leaves;
+        sah += half_area(nd) * nd.count;
+      } else {
+        sah += half_area(nd) * tc;
+        depth[nd.left_first] = depth[nd.left_first + 1] = depth[j] + 1;
+      }
     }
   }
   bi.max_depth = max_depth;
