@@ -893,32 +893,61 @@ Bvh Bvh::build(const TriangleInput& input, const BvhOptions& options, BuildInfo*
       const Vec3 e = bin[i].max - bin[i].min;
       return e.x * e.y + e.y * e.z + e.z * e.x;
     };
-    // Triangle blocks of the leaves, in the order the collapse meets them (depth first).
-    auto& tri4 = bvh.tri4_;
-    tri4.reserve(bvh.prim_ids_.size() / 2 + 1);
+    // Triangle blocks of the leaves, in the order the collapse meets them (depth first). The
+    // collapse only numbers them and notes each lane's scene index (kNoHit: padding) in the
+    // free reference scratch; they are filled afterwards in one pass in block order, which can
+    // prefetch the vertices of the blocks ahead. (Gathering them as the collapse met the
+    // leaves waited on two dependent cache misses per triangle: index, then vertex.)
     const uint32_t* const ids = bvh.prim_ids_.data();
-    const uint32_t* const idx = input.indices.data();
-    const Vec3* const pos = input.positions.data();
-    const size_t vcount = input.positions.size();
+    uint32_t* const lanes = static_cast<uint32_t*>(scratch->get(0, sizeof(uint32_t) * kBlock * bvh.prim_ids_.size()));
+    uint32_t block_count = 0;
     const auto make_blocks = [&](uint32_t first, uint32_t count) {
-      const uint32_t index = static_cast<uint32_t>(tri4.size());
+      const uint32_t index = block_count;
+      uint32_t* out = lanes + size_t{kBlock} * index;
+      const uint32_t padded = (count + kBlock - 1) / kBlock * kBlock;
+      for (uint32_t i = 0; i < padded; ++i) out[i] = i < count ? ids[first + i] : kNoHit;
+      block_count += padded / kBlock;
+      return index;
+    };
+    const auto fill_blocks = [&] {
+      auto& tri4 = bvh.tri4_;
+      tri4.reserve(block_count);
+      const uint32_t* const idx = input.indices.data();
+      const Vec3* const pos = input.positions.data();
+      const size_t vcount = input.positions.size();
       // Each vertex as one 16-byte load (not the last vertex, whose 4 bytes after it are not
       // ours; lane 3 is dropped by the transpose).
       const auto vertex = [pos, vcount](uint32_t v) {
         return v + 1 < vcount ? _mm_loadu_ps(&pos[v].x) : _mm_setr_ps(pos[v].x, pos[v].y, pos[v].z, 0.0f);
       };
       const __m128 nan4 = _mm_set1_ps(std::numeric_limits<float>::quiet_NaN());
-      for (uint32_t b = 0; b < count; b += kBlock) {
+      // Prefetch distances in blocks: the index triples well ahead, the vertices they name a
+      // little ahead (as the BVH-order copy of the triangles did before).
+      constexpr uint32_t kAheadIdx = 6, kAheadPos = 2;
+      for (uint32_t b = 0; b < block_count; ++b) {
+        if (b + kAheadIdx < block_count)
+          for (uint32_t lane = 0; lane < kBlock; ++lane) {
+            const uint32_t id = lanes[size_t{kBlock} * (b + kAheadIdx) + lane];
+            if (id != kNoHit) __builtin_prefetch(idx + 3 * size_t{id});
+          }
+        if (b + kAheadPos < block_count)
+          for (uint32_t lane = 0; lane < kBlock; ++lane) {
+            const uint32_t id = lanes[size_t{kBlock} * (b + kAheadPos) + lane];
+            if (id == kNoHit) continue;
+            const uint32_t* ix = idx + 3 * size_t{id};
+            __builtin_prefetch(pos + ix[0]);
+            __builtin_prefetch(pos + ix[1]);
+            __builtin_prefetch(pos + ix[2]);
+          }
         // As accel::fill_block, into a local (emplace_back() would zero the block first): the
         // lanes' vertices transposed with SSE, (x, y, z, -) per lane -> v[vertex][axis][lane],
         // NaN in unused lanes.
         BvhTriangle4 blk;
-        const uint32_t used = std::min(kBlock, count - b);
         __m128 p[3][4];
-        for (uint32_t lane = 0; lane < 4; ++lane) {
-          const bool on = lane < used;
-          const uint32_t id = on ? ids[first + b + lane] : kNoHit;
+        for (uint32_t lane = 0; lane < kBlock; ++lane) {
+          const uint32_t id = lanes[size_t{kBlock} * b + lane];
           blk.index[lane] = id;
+          const bool on = id != kNoHit;
           const uint32_t* ix = idx + 3 * size_t{on ? id : 0};
           for (int k = 0; k < 3; ++k) p[k][lane] = on ? vertex(ix[k]) : nan4;
         }
@@ -929,7 +958,6 @@ Bvh Bvh::build(const TriangleInput& input, const BvhOptions& options, BuildInfo*
         }
         tri4.push_back(blk);
       }
-      return index;
     };
     // The binary subtree of every node: its first triangle, triangle count and leaf count
     // (children always follow their parent in the node array, so one backward pass).
@@ -1107,6 +1135,7 @@ Bvh Bvh::build(const TriangleInput& input, const BvhOptions& options, BuildInfo*
     } else {
       collapse_into(bvh.wide_);
     }
+    fill_blocks();
   }
 
   // 5. Figures: node/leaf counts, depth and the SAH cost (root-area normalised), in one pass
