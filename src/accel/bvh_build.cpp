@@ -1032,7 +1032,11 @@ Bvh Bvh::build(const TriangleInput& input, const BvhOptions& options, BuildInfo*
         const float area = std::max(half_area_of(jj), 0.0f);
         const float leaf = sub_count[j] <= max_leaf ? area * kBlockCost * blocks(sub_count[j]) : kInf;
         if (bin[j].is_leaf()) {
-          for (int k = 0; k < W; ++k) cj[k] = leaf, sj[k] = k == 0 ? 1 : 0;
+          // (Separate loops: the byte stores may alias the floats, which kept the compiler
+          // from vectorising the fused loop.)
+          for (int k = 0; k < W; ++k) cj[k] = leaf;
+          sj[0] = 1;
+          for (int k = 1; k < W; ++k) sj[k] = 0;
           continue;
         }
         // best_split for every k at once: m[k - 1] is the least cost[l][a - 1] + cost[r][k - a - 1]
@@ -1065,9 +1069,14 @@ Bvh Bvh::build(const TriangleInput& input, const BvhOptions& options, BuildInfo*
         const float node = m[kmax - 1] + area * kNodeCost;
         cj[0] = std::min(leaf, node);
         sj[0] = leaf <= node ? 1 : 0;
+        // The running best in a register: read back from cj, it waited on the store just made
+        // (store forwarding every step; the byte stores to sj may alias cj, so the compiler
+        // could not keep it).
+        float best = cj[0];
         for (int k = 2; k <= W; ++k) {
-          const bool better = k <= kmax && m[k - 1] < cj[k - 2];
-          cj[k - 1] = better ? m[k - 1] : cj[k - 2];
+          const bool better = k <= kmax && m[k - 1] < best;
+          best = better ? m[k - 1] : best;
+          cj[k - 1] = best;
           sj[k - 1] = static_cast<uint8_t>(better ? arg[k - 1] : 0);
         }
       }
