@@ -1006,7 +1006,8 @@ Bvh Bvh::build(const TriangleInput& input, const BvhOptions& options, BuildInfo*
       // on most single-ray kinds in alternating wall-time runs (1, 2.5, 4, 6 tried).
       const float kNodeCost = W == 16 ? 2.5f : 1.0f;
       constexpr float kBlockCost = 1.0f;
-      float* const cost = static_cast<float*>(scratch->get(2, sizeof(float) * nb * W));
+      // (Four floats more: the DP below reads a row in groups of four, past its end.)
+      float* const cost = static_cast<float*>(scratch->get(2, sizeof(float) * (nb * W + 4)));
       // split[j][k - 1]: 0 = as for k - 1 slots (or, for k = 1: 0 = wide node, 1 = leaf), else
       // the left child's slot count a (the right one gets k - a).
       auto* const split = static_cast<uint8_t*>(scratch->get(3, nb * W));
@@ -1050,19 +1051,28 @@ Bvh Bvh::build(const TriangleInput& input, const BvhOptions& options, BuildInfo*
                   lr = static_cast<int>(std::min<uint32_t>(sub_leaves[r], W));
         const float* const cl = &cost[size_t{l} * W];
         const float* const cr = &cost[size_t{r} * W];
-        float m[W];
-        int32_t arg[W];
-        for (int k = 0; k < W; ++k) m[k] = kInf, arg[k] = 0;
+        // Four t at a time (SSE2; lanes t >= tn masked off, so m and arg have three entries of
+        // padding and cr may be read up to three floats past tn).
+        alignas(16) float m[W + 4];
+        alignas(16) int32_t arg[W + 4];
+        for (int k = 0; k < W + 4; ++k) m[k] = kInf, arg[k] = 0;
+        const __m128i lane = _mm_setr_epi32(0, 1, 2, 3);
         for (int a = 1; a <= std::min(ll, W - 1); ++a) {
-          const float ca = cl[a - 1];
+          const __m128 ca = _mm_set1_ps(cl[a - 1]);
+          const __m128i av = _mm_set1_epi32(a);
           const int tn = std::min(lr, W - a);
           float* const ma = m + a;
           int32_t* const aa = arg + a;
-          for (int t = 0; t < tn; ++t) {
-            const float c = ca + cr[t];
-            const bool lt = c < ma[t];
-            ma[t] = lt ? c : ma[t];
-            aa[t] = lt ? a : aa[t];
+          for (int t = 0; t < tn; t += 4) {
+            const __m128 c = _mm_add_ps(ca, _mm_loadu_ps(cr + t));
+            const __m128 old = _mm_loadu_ps(ma + t);
+            const __m128 lt = _mm_and_ps(_mm_cmplt_ps(c, old),
+                                         _mm_castsi128_ps(_mm_cmpgt_epi32(_mm_set1_epi32(tn - t), lane)));
+            _mm_storeu_ps(ma + t, _mm_or_ps(_mm_and_ps(lt, c), _mm_andnot_ps(lt, old)));
+            const __m128i li = _mm_castps_si128(lt);
+            const __m128i olda = _mm_loadu_si128(reinterpret_cast<const __m128i*>(aa + t));
+            _mm_storeu_si128(reinterpret_cast<__m128i*>(aa + t),
+                             _mm_or_si128(_mm_and_si128(li, av), _mm_andnot_si128(li, olda)));
           }
         }
         const int kmax = static_cast<int>(std::min<uint32_t>(sub_leaves[j], W));
