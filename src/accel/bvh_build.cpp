@@ -758,15 +758,20 @@ Bvh Bvh::build(const TriangleInput& input, const BvhOptions& options, BuildInfo*
       // (std::min(x, y) is _mm_min_ps(y, x), std::max(x, y) is _mm_max_ps(y, x)).
       static_assert(sizeof(Vec3) == 3 * sizeof(float));
       const __m128 xyz = _mm_castsi128_ps(_mm_setr_epi32(-1, -1, -1, 0));
+      // Plain pointers and a local count: the reference stores (__m128, which may alias
+      // anything) made the compiler reload the spans' pointers and keep *compact in memory,
+      // a store-forwarding wait per triangle.
+      const uint32_t* const idx = input.indices.data();
+      const Vec3* const pos = input.positions.data();
+      uint32_t packed = compact ? *compact : 0;
       const auto load = [&](uint32_t v) {
-        const Vec3& p = input.positions[v];
+        const Vec3& p = pos[v];
         // A 16-byte load reads the next vertex's x too (lane 3, masked off); not the last.
         return v + 1 < vcount ? _mm_and_ps(_mm_loadu_ps(&p.x), xyz) : _mm_setr_ps(p.x, p.y, p.z, 0.0f);
       };
       Box4 box, cbox;  // in registers for the loop; rb is behind a reference
       for (uint32_t i = begin; i < end; ++i) {
-        const uint32_t i0 = input.indices[3 * size_t{i}], i1 = input.indices[3 * size_t{i} + 1],
-                       i2 = input.indices[3 * size_t{i} + 2];
+        const uint32_t i0 = idx[3 * size_t{i}], i1 = idx[3 * size_t{i} + 1], i2 = idx[3 * size_t{i} + 2];
         if (i0 >= vcount || i1 >= vcount || i2 >= vcount) [[unlikely]] {
           invalid.store(true, std::memory_order_relaxed);
           if (!compact) degenerate[i] = 1;
@@ -784,11 +789,11 @@ Bvh Bvh::build(const TriangleInput& input, const BvhOptions& options, BuildInfo*
         const bool degen = !(d > 0.0f && d < kInf);
         if (!compact) degenerate[i] = degen ? 1 : 0;
         if (degen) {
-          const Vec3 &pa = input.positions[i0], &pb = input.positions[i1], &pc = input.positions[i2];
+          const Vec3 &pa = pos[i0], &pb = pos[i1], &pc = pos[i2];
           if (!is_finite(pa) || !is_finite(pb) || !is_finite(pc)) invalid.store(true, std::memory_order_relaxed);
           continue;
         }
-        PrimRef& r = refs[compact ? (*compact)++ : i];
+        PrimRef& r = refs[compact ? packed++ : i];
         // Lane 3: the index bits in lo, 0 in hi.
         const __m128 l4 = _mm_or_ps(_mm_min_ps(_mm_min_ps(c, b), a),
                                     _mm_castsi128_ps(_mm_setr_epi32(0, 0, 0, static_cast<int>(i))));
@@ -799,6 +804,7 @@ Bvh Bvh::build(const TriangleInput& input, const BvhOptions& options, BuildInfo*
         const __m128 c4 = _mm_add_ps(l4, h4);
         cbox.grow(c4, c4);
       }
+      if (compact) *compact = packed;
       rb.box.grow(box);
       rb.cbox.grow(cbox);
     };
