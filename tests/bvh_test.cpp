@@ -5,8 +5,10 @@
 #include <algorithm>
 #include <atomic>
 #include <cmath>
+#include <cstring>
 #include <limits>
 #include <numeric>
+#include <span>
 #include <sstream>
 #include <string>
 #include <unordered_map>
@@ -580,6 +582,68 @@ TEST(BvhStructure, SameTreeForAnyThreadCount) {
   EXPECT_EQ(a.build_info().sah_cost, b.build_info().sah_cost);  // summed in tree order: exact
   EXPECT_EQ(a.build_info().max_depth, b.build_info().max_depth);
   check_invariants(b, soup.input(), two);
+}
+
+TEST(BvhStructure, SameTraversalLayoutForAnyThreadCount) {
+  // Not only the binary tree: the wide nodes of every kernel, the triangle blocks and the
+  // triangles are byte for byte the same whether the build used one thread or two.
+  const Mesh soup = test::make_soup(40000, 5);
+  for (const BvhKernel k : test_kernels()) {
+    BvhOptions one, two;
+    one.threads = 1;
+    two.threads = 2;
+    one.kernel = two.kernel = k;
+    const Bvh a = Bvh::build(soup.input(), one), b = Bvh::build(soup.input(), two);
+    const auto same_bytes = [](auto x, auto y) {
+      return x.size() == y.size() && std::memcmp(x.data(), y.data(), x.size_bytes()) == 0;
+    };
+    EXPECT_TRUE(same_bytes(a.wide_nodes(), b.wide_nodes())) << bvh_kernel_name(k);
+    EXPECT_TRUE(same_bytes(a.wide8_nodes(), b.wide8_nodes())) << bvh_kernel_name(k);
+    EXPECT_TRUE(same_bytes(a.wide16_nodes(), b.wide16_nodes())) << bvh_kernel_name(k);
+    EXPECT_TRUE(same_bytes(a.triangle_blocks(), b.triangle_blocks())) << bvh_kernel_name(k);
+    EXPECT_TRUE(same_bytes(a.triangles(), b.triangles())) << bvh_kernel_name(k);
+  }
+}
+
+TEST(BvhStructure, SahCostDoesNotRiseAboveRecordedBounds) {
+  // The build may get faster, never worse trees: SAH costs as recorded on 2026-12-02 (binned
+  // SAH, 4 + n / 20 bins up to 32), plus a relative 1e-9 for the summation.
+  const std::pair<int, double> soups[] = {{3000, 102.08646495078148}, {40000, 677.07695933820719}};
+  for (const auto& [count, bound] : soups) {
+    const Mesh soup = test::make_soup(count, count == 3000 ? 9u : 5u);
+    for (const int threads : {1, 2}) {
+      BvhOptions o;
+      o.threads = threads;
+      EXPECT_LE(Bvh::build(soup.input(), o).build_info().sah_cost, bound * (1.0 + 1e-9)) << count << " triangles";
+    }
+  }
+  SPECULA_REQUIRE_MESH(path, "stanford-bunny.obj");
+  const Scene scene = load_obj(path);
+  EXPECT_LE(Bvh::build({scene.positions, scene.indices, {}}).build_info().sah_cost, 36.4980 + 1e-4);
+}
+
+TEST(BvhBasics, TrianglesAreCopiedOutOnceAndSharedByCopies) {
+  // triangles() is filled from the blocks on its first call: concurrent first calls, and a
+  // copy of the Bvh made before it, all see the same, complete array in BVH order.
+  const Mesh soup = test::make_soup(5000, 3);
+  const Bvh bvh = Bvh::build(soup.input());
+  const Bvh copy = bvh;  // NOLINT(performance-unnecessary-copy-initialization): the copy is the test
+  std::atomic<int> wrong{0};
+  tbb::parallel_for(tbb::blocked_range<int>(0, 16, 1), [&](const tbb::blocked_range<int>& r) {
+    for (int i = r.begin(); i != r.end(); ++i) {
+      const std::span<const BvhTriangle> t = (i % 2 ? copy : bvh).triangles();
+      if (t.size() != bvh.prim_ids().size()) {
+        ++wrong;
+        continue;
+      }
+      for (size_t j = 0; j < t.size(); ++j)
+        for (int k = 0; k < 3; ++k)
+          if (!(t[j].vertex(k) == soup.positions[soup.indices[3 * size_t{bvh.prim_ids()[j]} + static_cast<size_t>(k)]])) ++wrong;
+    }
+  });
+  EXPECT_EQ(wrong.load(), 0);
+  EXPECT_EQ(bvh.triangles().data(), copy.triangles().data());
+  EXPECT_TRUE(Bvh().triangles().empty());
 }
 
 TEST(BvhStructure, RebuildsAndConcurrentBuildsGiveTheSameTree) {

@@ -14,6 +14,7 @@
 
 #include <cstddef>
 #include <cstdint>
+#include <memory>
 #include <new>
 #include <span>
 #include <vector>
@@ -121,7 +122,9 @@ class Bvh final : public Tracer {
   std::span<const BvhWideNode8> wide8_nodes() const { return wide8_; }
   /// The 16-wide traversal layout derived from nodes() (BvhKernel::Avx512x16; empty otherwise).
   std::span<const BvhWideNode16> wide16_nodes() const { return wide16_; }
-  std::span<const BvhTriangle> triangles() const { return tris_; }
+  /// The triangles in BVH order (prim_ids() order). The traversal never reads them: they are
+  /// copied out of triangle_blocks() on the first call (thread-safe) instead of by every build.
+  std::span<const BvhTriangle> triangles() const;
   /// The leaves' triangles in blocks of four (what the leaf tests actually read).
   std::span<const BvhTriangle4> triangle_blocks() const { return tri4_; }
   /// BVH order -> scene triangle index.
@@ -136,7 +139,8 @@ class Bvh final : public Tracer {
   std::vector<BvhWideNode16, detail::AlignedAllocator<BvhWideNode16>> wide16_;
   BvhKernel kernel_ = BvhKernel::Sse4;
   bool packets_ = true;
-  std::vector<BvhTriangle, detail::AlignedAllocator<BvhTriangle>> tris_;
+  struct TriangleCache;  ///< triangles(), filled on first use; shared by copies (immutable)
+  std::shared_ptr<TriangleCache> tris_;
   std::vector<BvhTriangle4, detail::AlignedAllocator<BvhTriangle4>> tri4_;
   std::vector<uint32_t> prim_ids_;
   std::vector<Vec3> transmittance_;  ///< scene (input) order; empty when every triangle is opaque

@@ -175,7 +175,7 @@ class BvhTraversal {
                            : static_cast<const void*>(bvh.wide_.data()),
                    bvh.tri4_.data(),
                    bvh.transmittance_.empty() ? nullptr : bvh.transmittance_.data(),
-                   bvh.tris_.empty(),
+                   bvh.prim_ids_.empty(),
                    bvh.packets_};
   }
 
