@@ -119,8 +119,8 @@ VoxelAttributes average_children_scalar(const VoxelAttributes* child, const uint
 /// _mm_max_ps(b, a) and std::min(a, b) is _mm_min_ps(b, a), signed zeros and NaNs included),
 /// then the min/max fold over the children stays sequential in child order.
 template <bool kUnitWeights>
-VoxelAttributes average_children(const VoxelAttributes* child, const uint32_t* weights, const int* slots, int n,
-                                 float child_half) {
+[[gnu::always_inline]] inline VoxelAttributes average_children(const VoxelAttributes* child, const uint32_t* weights,
+                                                               const int* slots, int n, float child_half) {
   static_assert(sizeof(VoxelAttributes) == 48 && offsetof(VoxelAttributes, colour) == 12 &&
                 offsetof(VoxelAttributes, reflectivity) == 24 && offsetof(VoxelAttributes, ior) == 32 &&
                 offsetof(VoxelAttributes, contour_lo) == 36 && offsetof(VoxelAttributes, material) == 44);
@@ -221,11 +221,31 @@ VoxelAttributes average_children(const VoxelAttributes* child, const uint32_t* w
 }
 #else
 template <bool kUnitWeights>
-VoxelAttributes average_children(const VoxelAttributes* child, const uint32_t* weights, const int* slots, int n,
-                                 float child_half) {
+inline VoxelAttributes average_children(const VoxelAttributes* child, const uint32_t* weights, const int* slots, int n,
+                                        float child_half) {
   return average_children_scalar<kUnitWeights>(child, weights, slots, n, child_half);
 }
 #endif
+
+// The averaging compiled twice (baseline x86-64 and x86-64-v3, i.e. AVX2: three-operand VEX
+// forms, no register copies), the right one chosen at load time. Both give identical results
+// (the same operations; no contraction into FMA: -ffp-contract=off).
+#if defined(__GNUC__) && !defined(__clang__) && defined(__x86_64__)
+#define SPECULA_SVO_CLONES [[gnu::flatten, gnu::target_clones("default", "arch=x86-64-v3")]]
+#else
+#define SPECULA_SVO_CLONES [[gnu::flatten]]
+#endif
+/// average_children of voxels (unit weights).
+SPECULA_SVO_CLONES
+VoxelAttributes average_voxels(const VoxelAttributes* child, const int* slots, int n, float child_half) {
+  return average_children<true>(child, nullptr, slots, n, child_half);
+}
+/// average_children of inner nodes (weights = their voxel counts).
+SPECULA_SVO_CLONES
+VoxelAttributes average_nodes(const VoxelAttributes* child, const uint32_t* weights, const int* slots, int n,
+                              float child_half) {
+  return average_children<false>(child, weights, slots, n, child_half);
+}
 
 /// validate_set's test of one voxel's attributes (every float finite, contour_lo <= contour_hi),
 /// branch-free: x - x is 0 for a finite x and NaN for an infinity or a NaN.
@@ -422,21 +442,24 @@ SparseVoxelOctree SparseVoxelOctree::build_from(const VoxelSet& set, std::vector
   SvoNode* nodes = svo.nodes_.data();
   VoxelAttributes* inner = svo.inner_attrs_.data();
   const VoxelAttributes* leaves = svo.leaf_attrs_.data();
+  std::array<float, kMaxVoxelDepth + 1> child_halves{};  // per level: the children's half side
+  for (int l = 0; l < depth; ++l)
+    child_halves[static_cast<size_t>(l)] = 0.25f * set.grid.side / static_cast<float>(1u << l);
   const auto close = [&](uint32_t idx, int l) {  // averages node idx (level l) from its children
     const SvoNode node = nodes[idx];
-    const float child_half = 0.25f * set.grid.side / static_cast<float>(1u << l);
+    const float child_half = child_halves[static_cast<size_t>(l)];
     int slots[8];
     int m = 0;
     for (uint32_t bits = node.mask; bits != 0; bits &= bits - 1) slots[m++] = std::countr_zero(bits);
     if (l == depth - 1) {
       counts[idx] = static_cast<uint32_t>(m);
-      inner[idx] = average_children<true>(&leaves[node.first_child], nullptr, slots, m, child_half);
+      inner[idx] = average_voxels(&leaves[node.first_child], slots, m, child_half);
     } else {
       const uint32_t* weights = &counts[node.first_child];
       uint32_t total = 0;
       for (int i = 0; i < m; ++i) total += weights[i];
       counts[idx] = total;
-      inner[idx] = average_children<false>(&inner[node.first_child], weights, slots, m, child_half);
+      inner[idx] = average_nodes(&inner[node.first_child], weights, slots, m, child_half);
     }
   };
 
