@@ -34,6 +34,20 @@ namespace specula {
 
 namespace {
 
+/// Per child mask: the slots of the children in order (the set bits, low to high; 0 past the
+/// last) and their count.
+struct SlotList {
+  std::array<uint8_t, 8> slot{};
+  int count = 0;
+};
+constexpr std::array<SlotList, 256> kSlotLists = [] {
+  std::array<SlotList, 256> t{};
+  for (uint32_t m = 0; m < 256; ++m)
+    for (uint32_t s = 0; s < 8; ++s)
+      if ((m >> s) & 1u) t[m].slot[static_cast<size_t>(t[m].count++)] = static_cast<uint8_t>(s);
+  return t;
+}();
+
 /// Averaged attributes of one inner node from its children: \p n children stored contiguously
 /// at \p child, in slot order (the set bits of the node's mask, \p slots). Weights = voxel
 /// counts. \p child_half is the children's half side in world units. kUnitWeights: every weight
@@ -41,7 +55,7 @@ namespace {
 /// the same result, bit for bit). The reference for the SSE2 version below (kept for targets
 /// without SSE2 and as its specification: both give the same bits).
 template <bool kUnitWeights>
-VoxelAttributes average_children_scalar(const VoxelAttributes* child, const uint32_t* weights, const int* slots,
+VoxelAttributes average_children_scalar(const VoxelAttributes* child, const uint32_t* weights, const uint8_t* slots,
                                         int n, float child_half) {
   VoxelAttributes out;
   Vec3 nsum, csum;
@@ -120,7 +134,7 @@ VoxelAttributes average_children_scalar(const VoxelAttributes* child, const uint
 /// then the min/max fold over the children stays sequential in child order.
 template <bool kUnitWeights>
 [[gnu::always_inline]] inline VoxelAttributes average_children(const VoxelAttributes* child, const uint32_t* weights,
-                                                               const int* slots, int n, float child_half) {
+                                                               const uint8_t* slots, int n, float child_half) {
   static_assert(sizeof(VoxelAttributes) == 48 && offsetof(VoxelAttributes, colour) == 12 &&
                 offsetof(VoxelAttributes, reflectivity) == 24 && offsetof(VoxelAttributes, ior) == 32 &&
                 offsetof(VoxelAttributes, contour_lo) == 36 && offsetof(VoxelAttributes, material) == 44);
@@ -190,7 +204,10 @@ template <bool kUnitWeights>
     __m128 b0 = load(child + j, 32), clo_c = load(child + i1, 32), chi_c = load(child + i2, 32),
            b3 = load(child + i3, 32);
     _MM_TRANSPOSE4_PS(b0, clo_c, chi_c, b3);
-    const __m128i s = _mm_set_epi32(slots[i3], slots[i2], slots[i1], slots[j]);
+    uint32_t four;  // slots j..j+3 (the table holds 8)
+    std::memcpy(&four, slots + j, sizeof four);
+    const __m128i s = _mm_unpacklo_epi16(
+        _mm_unpacklo_epi8(_mm_cvtsi32_si128(static_cast<int>(four)), _mm_setzero_si128()), _mm_setzero_si128());
     const __m128 offs = _mm_add_ps(_mm_add_ps(_mm_mul_ps(nx, half(s, 1)), _mm_mul_ps(ny, half(s, 2))),
                                    _mm_mul_ps(nz, half(s, 4)));
     const __m128 nn = _mm_add_ps(_mm_add_ps(_mm_mul_ps(ax, ax), _mm_mul_ps(ay, ay)), _mm_mul_ps(az, az));
@@ -221,8 +238,8 @@ template <bool kUnitWeights>
 }
 #else
 template <bool kUnitWeights>
-inline VoxelAttributes average_children(const VoxelAttributes* child, const uint32_t* weights, const int* slots, int n,
-                                        float child_half) {
+inline VoxelAttributes average_children(const VoxelAttributes* child, const uint32_t* weights, const uint8_t* slots,
+                                        int n, float child_half) {
   return average_children_scalar<kUnitWeights>(child, weights, slots, n, child_half);
 }
 #endif
@@ -235,16 +252,19 @@ inline VoxelAttributes average_children(const VoxelAttributes* child, const uint
 #else
 #define SPECULA_SVO_CLONES [[gnu::flatten]]
 #endif
-/// average_children of voxels (unit weights).
+/// average_children of the voxels under a node with child mask \p mask, into \p out.
 SPECULA_SVO_CLONES
-VoxelAttributes average_voxels(const VoxelAttributes* child, const int* slots, int n, float child_half) {
-  return average_children<true>(child, nullptr, slots, n, child_half);
+void average_voxels(const VoxelAttributes* child, uint32_t mask, float child_half, VoxelAttributes* out) {
+  const SlotList& sl = kSlotLists[mask & 0xFFu];
+  *out = average_children<true>(child, nullptr, sl.slot.data(), sl.count, child_half);
 }
-/// average_children of inner nodes (weights = their voxel counts).
+/// average_children of the inner nodes under a node with child mask \p mask (weights = their
+/// voxel counts), into \p out.
 SPECULA_SVO_CLONES
-VoxelAttributes average_nodes(const VoxelAttributes* child, const uint32_t* weights, const int* slots, int n,
-                              float child_half) {
-  return average_children<false>(child, weights, slots, n, child_half);
+void average_nodes(const VoxelAttributes* child, const uint32_t* weights, uint32_t mask, float child_half,
+                   VoxelAttributes* out) {
+  const SlotList& sl = kSlotLists[mask & 0xFFu];
+  *out = average_children<false>(child, weights, sl.slot.data(), sl.count, child_half);
 }
 
 /// validate_set's test of one voxel's attributes (every float finite, contour_lo <= contour_hi),
@@ -471,18 +491,16 @@ SparseVoxelOctree SparseVoxelOctree::build_from(const VoxelSet& set, std::vector
   const auto close = [&](uint32_t idx, int l) {  // averages node idx (level l) from its children
     const SvoNode node = nodes[idx];
     const float child_half = child_halves[static_cast<size_t>(l)];
-    int slots[8];
-    int m = 0;
-    for (uint32_t bits = node.mask; bits != 0; bits &= bits - 1) slots[m++] = std::countr_zero(bits);
+    const int m = kSlotLists[node.mask & 0xFFu].count;
     if (l == depth - 1) {
       counts[idx] = static_cast<uint32_t>(m);
-      inner[idx] = average_voxels(&leaves[node.first_child], slots, m, child_half);
+      average_voxels(&leaves[node.first_child], node.mask, child_half, &inner[idx]);
     } else {
       const uint32_t* weights = &counts[node.first_child];
       uint32_t total = 0;
       for (int i = 0; i < m; ++i) total += weights[i];
       counts[idx] = total;
-      inner[idx] = average_nodes(&inner[node.first_child], weights, slots, m, child_half);
+      average_nodes(&inner[node.first_child], weights, node.mask, child_half, &inner[idx]);
     }
   };
 
