@@ -509,30 +509,44 @@ SparseVoxelOctree SparseVoxelOctree::build_from(const VoxelSet& set, std::vector
     // The open node of each level, and its child mask so far (stored when it closes).
     std::array<uint32_t, kMaxVoxelDepth + 1> next = ch.first, open{}, mask{};
     const size_t last = static_cast<size_t>(depth) - 1;
+    // Locals (not reloaded through the captures after every store) and the voxels' mask,
+    // mask[last], in a register while its node is open.
+    const uint64_t* const code = codes;
+    const VoxelAttributes* const leaf = leaves;
+    SvoNode* const node = nodes;
+    const size_t begin = ch.begin, end = ch.end;
+    const int d = depth, top = k;
+    uint32_t leaf_mask = 0;
     FiniteCheck check;
-    for (size_t i = ch.begin; i < ch.end; ++i) {
-      const uint64_t c = codes[i];
-      const int L = i == ch.begin ? k : split_level(c, codes[i - 1], depth, k);
-      if (L < depth) {
-        if (i > ch.begin)
-          for (int l = depth - 1; l >= L; --l) {
+    uint64_t prev = code[begin] ^ (uint64_t{1} << 63);  // differs in bit 63: the first voxel opens level k
+    for (size_t i = begin; i < end; ++i) {
+      const uint64_t c = code[i];
+      const int L = split_level(c, prev, d, top);
+      prev = c;
+      if (L < d) {
+        mask[last] = leaf_mask;
+        if (i > begin)
+          for (int l = d - 1; l >= L; --l) {
             const auto ul = static_cast<size_t>(l);
-            nodes[open[ul]].mask = mask[ul];
+            node[open[ul]].mask = mask[ul];
             close(open[ul], l);
           }
-        for (int l = L; l < depth; ++l) {
+        for (int l = L; l < d; ++l) {
           const auto ul = static_cast<size_t>(l);
           const uint32_t idx = next[ul]++;
           open[ul] = idx;
-          mask[ul] = 0;
-          nodes[idx].first_child = ul == last ? static_cast<uint32_t>(i) : next[ul + 1];
+          node[idx].first_child = ul == last ? static_cast<uint32_t>(i) : next[ul + 1];
         }
-        for (int l = std::max(L - 1, k); l < depth - 1; ++l)
-          mask[static_cast<size_t>(l)] |= 1u << ((c >> (3 * (depth - 1 - l))) & 7u);
+        // The voxel's bits: a child of the node of level L - 1 (open before), the first of the
+        // nodes it opens (their masks start from it).
+        if (L > top) mask[static_cast<size_t>(L) - 1] |= 1u << ((c >> (3 * (d - L))) & 7u);
+        for (int l = L; l < d - 1; ++l) mask[static_cast<size_t>(l)] = 1u << ((c >> (3 * (d - 1 - l))) & 7u);
+        leaf_mask = 0;
       }
-      mask[last] |= 1u << (c & 7u);
-      check.add(leaves[i]);
+      leaf_mask |= 1u << (c & 7u);
+      check.add(leaf[i]);
     }
+    mask[last] = leaf_mask;
     for (int l = depth - 1; l >= k; --l) {
       const auto ul = static_cast<size_t>(l);
       nodes[open[ul]].mask = mask[ul];
