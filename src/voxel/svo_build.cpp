@@ -423,14 +423,23 @@ SparseVoxelOctree SparseVoxelOctree::build_from(const VoxelSet& set, std::vector
   // level-k codes.
   for_chunks([&](Chunk& ch) {
     std::array<uint32_t, kMaxVoxelDepth + 1> starts{};  // nodes opening at exactly level L
-    for (size_t i = ch.begin; i < ch.end; ++i) {
-      const uint64_t c = codes[i];
-      if (c >= limit || (i > 0 && c <= codes[i - 1])) {
+    // Locals (not reloaded after the stores). The previous code: before the first voxel all
+    // ones (c + 1 <= prev + 1 never holds, as c < limit <= 2^63; and c differs from it in bit
+    // 63, so split_level gives k), else the previous chunk's last code (which differs in the
+    // level-k code when the codes are valid: split_level gives k too).
+    const uint64_t* const code = codes;
+    const size_t end = ch.end;
+    const int d = depth, top = k;
+    uint64_t prev = ch.begin > 0 ? code[ch.begin - 1] : ~uint64_t{0};
+    for (size_t i = ch.begin; i < end; ++i) {
+      const uint64_t c = code[i];
+      if (c >= limit || c + 1 <= prev + 1) {
         ch.bad_codes = true;
         return;
       }
-      const int L = i == ch.begin ? k : split_level(c, codes[i - 1], depth, k);
-      if (L >= depth) continue;
+      const int L = split_level(c, prev, d, top);
+      prev = c;
+      if (L >= d) continue;
       ++starts[static_cast<size_t>(L)];
       if (L == k) ch.top.push_back(c >> top_shift);
     }
