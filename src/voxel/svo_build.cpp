@@ -285,12 +285,14 @@ bool finite_attrs(const VoxelAttributes& a) {
 class FiniteCheck {
  public:
   void add(const VoxelAttributes& a) {
-    Float4 v[2];
+    Float4 u, v;
     Int4 m;
-    std::memcpy(static_cast<void*>(v), &a, sizeof v);
-    std::memcpy(&m, reinterpret_cast<const char*>(&a) + sizeof v, sizeof m);
+    const char* p = reinterpret_cast<const char*>(&a);
+    std::memcpy(&u, p, sizeof u);
+    std::memcpy(&v, p + 16, sizeof v);
+    std::memcpy(&m, p + 32, sizeof m);
     const Float4 w = reinterpret_cast<Float4>(m & Int4{-1, -1, -1, 0});  // the material id: not a float
-    acc_ += ((v[0] - v[0]) + (v[1] - v[1])) + (w - w);
+    acc_ += ((u - u) + (v - v)) + (w - w);
     unordered_ |= !(a.contour_lo <= a.contour_hi);
   }
   bool bad() const { return !((acc_[0] + acc_[1]) + (acc_[2] + acc_[3]) == 0.0f) || unordered_; }
