@@ -1012,5 +1012,40 @@ TEST(VoxelSkip, SkippingAMaterialEqualsTracingTheSetWithoutIt) {
   }
 }
 
+/// The chunked build's attribute check (validate_set's rule: every float finite, contour_lo <=
+/// contour_hi) looks at every float field, and never at the material id (any bits are valid,
+/// also those of a float NaN).
+TEST(Svo, AttributeCheckCoversEveryFloatAndNotTheMaterial) {
+  const VoxelSet set = random_set(dyadic_grid(8), 60000, 5);
+  ASSERT_GT(set.size(), 40000u);
+  const size_t at = set.size() / 3 + 5;
+  VoxelTracerOptions o;
+  o.threads = 2;
+  for (int field = 0; field < 11; ++field) {
+    for (const float bad : {std::numeric_limits<float>::quiet_NaN(), std::numeric_limits<float>::infinity(),
+                            -std::numeric_limits<float>::infinity()}) {
+      VoxelSet s = set;
+      float f[11];
+      std::memcpy(f, &s.attrs[at], sizeof f);
+      f[field] = bad;
+      std::memcpy(static_cast<void*>(&s.attrs[at]), f, sizeof f);
+      std::string what = "no error";
+      try {
+        SparseVoxelOctree::build(s, o);
+      } catch (const Error& e) {
+        what = e.what();
+      }
+      EXPECT_EQ(what, "svo: voxel " + std::to_string(at) + ": non-finite attributes or contour_lo > contour_hi")
+          << "field " << field;
+    }
+  }
+  for (const uint32_t material : {0x7fc00000u, 0xffffffffu, 0x7f800000u, 1u}) {
+    VoxelSet s = set;
+    s.attrs[at].material = material;
+    const SparseVoxelOctree t = SparseVoxelOctree::build(s, o);
+    EXPECT_EQ(t.leaf_attributes()[at].material, material);
+  }
+}
+
 }  // namespace
 }  // namespace specula

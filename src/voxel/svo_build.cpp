@@ -25,23 +25,44 @@
 #include "specula/timer.h"
 #include "voxel/voxel_brute.h"
 
+#if defined(__SSE2__)
+#include <emmintrin.h>
+#include <xmmintrin.h>
+#endif
+
 namespace specula {
 
 namespace {
 
-/// Averaged attributes of one inner node from its children (weights = voxel counts).
-/// \p child_half is the children's half side in world units. kUnitWeights: every weight is 1
-/// (the children are voxels), so the products by the weights are left out (x * 1.0f == x:
-/// the same result, bit for bit).
+/// Per child mask: the slots of the children in order (the set bits, low to high; 0 past the
+/// last) and their count.
+struct SlotList {
+  std::array<uint8_t, 8> slot{};
+  int count = 0;
+};
+constexpr std::array<SlotList, 256> kSlotLists = [] {
+  std::array<SlotList, 256> t{};
+  for (uint32_t m = 0; m < 256; ++m)
+    for (uint32_t s = 0; s < 8; ++s)
+      if ((m >> s) & 1u) t[m].slot[static_cast<size_t>(t[m].count++)] = static_cast<uint8_t>(s);
+  return t;
+}();
+
+/// Averaged attributes of one inner node from its children: \p n children stored contiguously
+/// at \p child, in slot order (the set bits of the node's mask, \p slots). Weights = voxel
+/// counts. \p child_half is the children's half side in world units. kUnitWeights: every weight
+/// is 1 (the children are voxels), so the products by the weights are left out (x * 1.0f == x:
+/// the same result, bit for bit). The reference for the SSE2 version below (kept for targets
+/// without SSE2 and as its specification: both give the same bits).
 template <bool kUnitWeights>
-VoxelAttributes average_children(const VoxelAttributes* const* attrs, const uint32_t* weights, const int* slots, int n,
-                                 float child_half) {
+VoxelAttributes average_children_scalar(const VoxelAttributes* child, const uint32_t* weights, const uint8_t* slots,
+                                        int n, float child_half) {
   VoxelAttributes out;
   Vec3 nsum, csum;
   float refl = 0.0f, transp = 0.0f, ior = 0.0f, wsum = 0.0f;
   int heaviest = 0;
   for (int i = 0; i < n; ++i) {
-    const VoxelAttributes& a = *attrs[i];
+    const VoxelAttributes& a = child[i];
     if constexpr (kUnitWeights) {
       nsum += a.normal;
       csum += a.colour;
@@ -65,9 +86,9 @@ VoxelAttributes average_children(const VoxelAttributes* const* attrs, const uint
   out.reflectivity = refl * inv;
   out.transparency = transp * inv;
   out.ior = ior * inv;
-  out.material = attrs[heaviest]->material;
+  out.material = child[heaviest].material;
   Vec3 nrm = normalize(nsum);
-  if (nrm == Vec3{}) nrm = normalize(attrs[heaviest]->normal);
+  if (nrm == Vec3{}) nrm = normalize(child[heaviest].normal);
   if (nrm == Vec3{}) nrm = Vec3{0.0f, 0.0f, 1.0f};
   out.normal = nrm;
 
@@ -77,7 +98,7 @@ VoxelAttributes average_children(const VoxelAttributes* const* attrs, const uint
   const float l1n = std::fabs(nrm.x) + std::fabs(nrm.y) + std::fabs(nrm.z);
   float lo = kInf, hi = -kInf;
   for (int i = 0; i < n; ++i) {
-    const VoxelAttributes& a = *attrs[i];
+    const VoxelAttributes& a = child[i];
     const Vec3 delta{(slots[i] & 1) ? child_half : -child_half, (slots[i] & 2) ? child_half : -child_half,
                      (slots[i] & 4) ? child_half : -child_half};
     const float offs = dot(nrm, delta);
@@ -104,6 +125,148 @@ VoxelAttributes average_children(const VoxelAttributes* const* attrs, const uint
   return out;
 }
 
+#if defined(__SSE2__)
+/// average_children_scalar with SSE2, the same operations in the same order on every value, so
+/// the same bits: the sums run over the children in order with the attribute fields as lanes
+/// (normal + red, green + blue + reflectivity + transparency, ior), the contour bounds of four
+/// children at a time run as lanes (selects for the branches; std::max(a, b) is
+/// _mm_max_ps(b, a) and std::min(a, b) is _mm_min_ps(b, a), signed zeros and NaNs included),
+/// then the min/max fold over the children stays sequential in child order.
+template <bool kUnitWeights>
+[[gnu::always_inline]] inline VoxelAttributes average_children(const VoxelAttributes* child, const uint32_t* weights,
+                                                               const uint8_t* slots, int n, float child_half) {
+  static_assert(sizeof(VoxelAttributes) == 48 && offsetof(VoxelAttributes, colour) == 12 &&
+                offsetof(VoxelAttributes, reflectivity) == 24 && offsetof(VoxelAttributes, ior) == 32 &&
+                offsetof(VoxelAttributes, contour_lo) == 36 && offsetof(VoxelAttributes, material) == 44);
+  const auto load = [](const VoxelAttributes* a, size_t offset) {
+    __m128 v;
+    std::memcpy(&v, reinterpret_cast<const char*>(a) + offset, sizeof v);
+    return v;
+  };
+  const __m128 first_lane = _mm_castsi128_ps(_mm_set_epi32(0, 0, 0, -1));
+  __m128 s0 = _mm_setzero_ps(), s1 = _mm_setzero_ps(), s2 = _mm_setzero_ps();
+  float wsum = 0.0f;
+  int heaviest = 0;
+  for (int i = 0; i < n; ++i) {
+    const __m128 v0 = load(child + i, 0), v1 = load(child + i, 16);
+    const __m128 v2 = _mm_and_ps(load(child + i, 32), first_lane);  // ior only
+    if constexpr (kUnitWeights) {
+      s0 = _mm_add_ps(s0, v0);
+      s1 = _mm_add_ps(s1, v1);
+      s2 = _mm_add_ps(s2, v2);
+      wsum += 1.0f;
+    } else {
+      const float w = static_cast<float>(weights[i]);
+      const __m128 wv = _mm_set1_ps(w);
+      s0 = _mm_add_ps(s0, _mm_mul_ps(v0, wv));
+      s1 = _mm_add_ps(s1, _mm_mul_ps(v1, wv));
+      s2 = _mm_add_ps(s2, _mm_mul_ps(v2, wv));
+      wsum += w;
+      if (weights[i] > weights[heaviest]) heaviest = i;
+    }
+  }
+  const __m128 inv = _mm_set1_ps(1.0f / wsum);
+  VoxelAttributes out;
+  {
+    const __m128 o0 = _mm_mul_ps(s0, inv);  // lane 3: red
+    const __m128 o1 = _mm_mul_ps(s1, inv);  // green, blue, reflectivity, transparency
+    std::memcpy(reinterpret_cast<char*>(&out) + 16, &o1, sizeof o1);
+    out.colour.x = _mm_cvtss_f32(_mm_shuffle_ps(o0, o0, _MM_SHUFFLE(3, 3, 3, 3)));
+    out.ior = _mm_cvtss_f32(_mm_mul_ss(s2, inv));
+  }
+  out.material = child[heaviest].material;
+  alignas(16) float ns[4];
+  _mm_store_ps(ns, s0);
+  Vec3 nrm = normalize(Vec3{ns[0], ns[1], ns[2]});
+  if (nrm == Vec3{}) nrm = normalize(child[heaviest].normal);
+  if (nrm == Vec3{}) nrm = Vec3{0.0f, 0.0f, 1.0f};
+  out.normal = nrm;
+
+  const float l1n = std::fabs(nrm.x) + std::fabs(nrm.y) + std::fabs(nrm.z);
+  const float cube = child_half * l1n;
+  const __m128 h = _mm_set1_ps(child_half), nx = _mm_set1_ps(nrm.x), ny = _mm_set1_ps(nrm.y),
+               nz = _mm_set1_ps(nrm.z);
+  const __m128 zero = _mm_setzero_ps(), sign = _mm_set1_ps(-0.0f);
+  const __m128 clo = _mm_set1_ps(-cube), chi = _mm_set1_ps(cube);
+  const auto select = [](__m128 m, __m128 a, __m128 b) { return _mm_or_ps(_mm_and_ps(m, a), _mm_andnot_ps(m, b)); };
+  const auto abs = [&](__m128 v) { return _mm_andnot_ps(sign, v); };
+  // (slot & bit) ? h : -h
+  const auto half = [&](__m128i s, int bit) {
+    const __m128i off = _mm_cmpeq_epi32(_mm_and_si128(s, _mm_set1_epi32(bit)), _mm_setzero_si128());
+    return _mm_xor_ps(h, _mm_and_ps(sign, _mm_castsi128_ps(off)));
+  };
+  alignas(16) float los[8], his[8];
+  for (int j = 0; j < n; j += 4) {
+    // Lanes past the last child repeat it (results unused).
+    const int i1 = std::min(j + 1, n - 1), i2 = std::min(j + 2, n - 1), i3 = std::min(j + 3, n - 1);
+    __m128 ax = load(child + j, 0), ay = load(child + i1, 0), az = load(child + i2, 0), a3 = load(child + i3, 0);
+    _MM_TRANSPOSE4_PS(ax, ay, az, a3);
+    __m128 b0 = load(child + j, 32), clo_c = load(child + i1, 32), chi_c = load(child + i2, 32),
+           b3 = load(child + i3, 32);
+    _MM_TRANSPOSE4_PS(b0, clo_c, chi_c, b3);
+    uint32_t four;  // slots j..j+3 (the table holds 8)
+    std::memcpy(&four, slots + j, sizeof four);
+    const __m128i s = _mm_unpacklo_epi16(
+        _mm_unpacklo_epi8(_mm_cvtsi32_si128(static_cast<int>(four)), _mm_setzero_si128()), _mm_setzero_si128());
+    const __m128 offs = _mm_add_ps(_mm_add_ps(_mm_mul_ps(nx, half(s, 1)), _mm_mul_ps(ny, half(s, 2))),
+                                   _mm_mul_ps(nz, half(s, 4)));
+    const __m128 nn = _mm_add_ps(_mm_add_ps(_mm_mul_ps(ax, ax), _mm_mul_ps(ay, ay)), _mm_mul_ps(az, az));
+    const __m128 dn = _mm_add_ps(_mm_add_ps(_mm_mul_ps(nx, ax), _mm_mul_ps(ny, ay)), _mm_mul_ps(nz, az));
+    const __m128 k = _mm_div_ps(dn, nn);
+    const __m128 rx = _mm_sub_ps(nx, _mm_mul_ps(ax, k)), ry = _mm_sub_ps(ny, _mm_mul_ps(ay, k)),
+                 rz = _mm_sub_ps(nz, _mm_mul_ps(az, k));
+    const __m128 rb = _mm_mul_ps(h, _mm_add_ps(_mm_add_ps(abs(rx), abs(ry)), abs(rz)));
+    const __m128 kpos = _mm_cmpge_ps(k, zero);
+    const __m128 klo = _mm_mul_ps(k, clo_c), khi = _mm_mul_ps(k, chi_c);
+    const __m128 slo = _mm_sub_ps(select(kpos, klo, khi), rb);
+    const __m128 shi = _mm_add_ps(select(kpos, khi, klo), rb);
+    const __m128 mx = _mm_max_ps(slo, clo);  // std::max(clo, slo)
+    const __m128 mn = _mm_min_ps(shi, chi);  // std::min(chi, shi)
+    const __m128 use = _mm_and_ps(_mm_cmple_ps(mx, mn), _mm_cmpgt_ps(nn, zero));
+    _mm_store_ps(los + j, _mm_add_ps(offs, select(use, mx, clo)));
+    _mm_store_ps(his + j, _mm_add_ps(offs, select(use, mn, chi)));
+  }
+  float lo = kInf, hi = -kInf;
+  for (int i = 0; i < n; ++i) {
+    lo = std::min(lo, los[i]);
+    hi = std::max(hi, his[i]);
+  }
+  const float pad = 8e-6f * child_half;  // covers the rounding of the sums above
+  out.contour_lo = lo - pad;
+  out.contour_hi = hi + pad;
+  return out;
+}
+#else
+template <bool kUnitWeights>
+inline VoxelAttributes average_children(const VoxelAttributes* child, const uint32_t* weights, const uint8_t* slots,
+                                        int n, float child_half) {
+  return average_children_scalar<kUnitWeights>(child, weights, slots, n, child_half);
+}
+#endif
+
+// The averaging compiled twice (baseline x86-64 and x86-64-v3, i.e. AVX2: three-operand VEX
+// forms, no register copies), the right one chosen at load time. Both give identical results
+// (the same operations; no contraction into FMA: -ffp-contract=off).
+#if defined(__GNUC__) && !defined(__clang__) && defined(__x86_64__)
+#define SPECULA_SVO_CLONES [[gnu::flatten, gnu::target_clones("default", "arch=x86-64-v3")]]
+#else
+#define SPECULA_SVO_CLONES [[gnu::flatten]]
+#endif
+/// average_children of the voxels under a node with child mask \p mask, into \p out.
+SPECULA_SVO_CLONES
+void average_voxels(const VoxelAttributes* child, uint32_t mask, float child_half, VoxelAttributes* out) {
+  const SlotList& sl = kSlotLists[mask & 0xFFu];
+  *out = average_children<true>(child, nullptr, sl.slot.data(), sl.count, child_half);
+}
+/// average_children of the inner nodes under a node with child mask \p mask (weights = their
+/// voxel counts), into \p out.
+SPECULA_SVO_CLONES
+void average_nodes(const VoxelAttributes* child, const uint32_t* weights, uint32_t mask, float child_half,
+                   VoxelAttributes* out) {
+  const SlotList& sl = kSlotLists[mask & 0xFFu];
+  *out = average_children<false>(child, weights, sl.slot.data(), sl.count, child_half);
+}
+
 /// validate_set's test of one voxel's attributes (every float finite, contour_lo <= contour_hi),
 /// branch-free: x - x is 0 for a finite x and NaN for an infinity or a NaN.
 bool finite_attrs(const VoxelAttributes& a) {
@@ -115,6 +278,31 @@ bool finite_attrs(const VoxelAttributes& a) {
   const Float4 z = (v[0] - v[0]) + (v[1] - v[1]) + (v[2] - v[2]);
   return (z[0] + z[1]) + (z[2] + z[3]) == 0.0f && a.contour_lo <= a.contour_hi;
 }
+
+/// finite_attrs over a run of voxels, cheaper: the lanes' x - x summed over all of them (0 while
+/// every float is finite, NaN from the first that is not: NaN + anything is NaN), the
+/// contour_lo <= contour_hi tests or-ed; bad() is true iff finite_attrs fails for some voxel.
+class FiniteCheck {
+ public:
+  void add(const VoxelAttributes& a) {
+    Float4 u, v;
+    Int4 m;
+    const char* p = reinterpret_cast<const char*>(&a);
+    std::memcpy(&u, p, sizeof u);
+    std::memcpy(&v, p + 16, sizeof v);
+    std::memcpy(&m, p + 32, sizeof m);
+    const Float4 w = reinterpret_cast<Float4>(m & Int4{-1, -1, -1, 0});  // the material id: not a float
+    acc_ += ((u - u) + (v - v)) + (w - w);
+    unordered_ |= !(a.contour_lo <= a.contour_hi);
+  }
+  bool bad() const { return !((acc_[0] + acc_[1]) + (acc_[2] + acc_[3]) == 0.0f) || unordered_; }
+
+ private:
+  typedef float Float4 __attribute__((vector_size(16)));
+  typedef int32_t Int4 __attribute__((vector_size(16)));
+  Float4 acc_{};
+  bool unordered_ = false;
+};
 
 /// What the parallel checks found invalid: voxel::validate_set() on a copy then throws its exact
 /// message (only on this path, so the copy costs nothing in a valid build).
@@ -237,14 +425,23 @@ SparseVoxelOctree SparseVoxelOctree::build_from(const VoxelSet& set, std::vector
   // level-k codes.
   for_chunks([&](Chunk& ch) {
     std::array<uint32_t, kMaxVoxelDepth + 1> starts{};  // nodes opening at exactly level L
-    for (size_t i = ch.begin; i < ch.end; ++i) {
-      const uint64_t c = codes[i];
-      if (c >= limit || (i > 0 && c <= codes[i - 1])) {
+    // Locals (not reloaded after the stores). The previous code: before the first voxel all
+    // ones (c + 1 <= prev + 1 never holds, as c < limit <= 2^63; and c differs from it in bit
+    // 63, so split_level gives k), else the previous chunk's last code (which differs in the
+    // level-k code when the codes are valid: split_level gives k too).
+    const uint64_t* const code = codes;
+    const size_t end = ch.end;
+    const int d = depth, top = k;
+    uint64_t prev = ch.begin > 0 ? code[ch.begin - 1] : ~uint64_t{0};
+    for (size_t i = ch.begin; i < end; ++i) {
+      const uint64_t c = code[i];
+      if (c >= limit || c + 1 <= prev + 1) {
         ch.bad_codes = true;
         return;
       }
-      const int L = i == ch.begin ? k : split_level(c, codes[i - 1], depth, k);
-      if (L >= depth) continue;
+      const int L = split_level(c, prev, d, top);
+      prev = c;
+      if (L >= d) continue;
       ++starts[static_cast<size_t>(L)];
       if (L == k) ch.top.push_back(c >> top_shift);
     }
@@ -299,27 +496,23 @@ SparseVoxelOctree SparseVoxelOctree::build_from(const VoxelSet& set, std::vector
   SvoNode* nodes = svo.nodes_.data();
   VoxelAttributes* inner = svo.inner_attrs_.data();
   const VoxelAttributes* leaves = svo.leaf_attrs_.data();
+  std::array<float, kMaxVoxelDepth + 1> child_halves{};  // per level: the children's half side
+  for (int l = 0; l < depth; ++l)
+    child_halves[static_cast<size_t>(l)] = 0.25f * set.grid.side / static_cast<float>(1u << l);
   const auto close = [&](uint32_t idx, int l) {  // averages node idx (level l) from its children
     const SvoNode node = nodes[idx];
-    const bool leaf_children = l == depth - 1;
-    const float child_half = 0.25f * set.grid.side / static_cast<float>(1u << l);
-    const VoxelAttributes* attrs[8];
-    uint32_t weights[8];
-    int slots[8];
-    int m = 0;
-    uint32_t total = 0;
-    for (uint32_t bits = node.mask; bits != 0; bits &= bits - 1) {
-      const int s = std::countr_zero(bits);
-      const uint32_t c = node.first_child + static_cast<uint32_t>(m);
-      attrs[m] = leaf_children ? &leaves[c] : &inner[c];
-      weights[m] = leaf_children ? 1u : counts[c];
-      slots[m] = s;
-      total += weights[m];
-      ++m;
+    const float child_half = child_halves[static_cast<size_t>(l)];
+    const int m = kSlotLists[node.mask & 0xFFu].count;
+    if (l == depth - 1) {
+      counts[idx] = static_cast<uint32_t>(m);
+      average_voxels(&leaves[node.first_child], node.mask, child_half, &inner[idx]);
+    } else {
+      const uint32_t* weights = &counts[node.first_child];
+      uint32_t total = 0;
+      for (int i = 0; i < m; ++i) total += weights[i];
+      counts[idx] = total;
+      average_nodes(&inner[node.first_child], weights, node.mask, child_half, &inner[idx]);
     }
-    counts[idx] = total;
-    inner[idx] = leaf_children ? average_children<true>(attrs, weights, slots, m, child_half)
-                               : average_children<false>(attrs, weights, slots, m, child_half);
   };
 
   // Pass 2: nodes of levels k..depth-1 in voxel order, each averaged when its last child is done.
@@ -327,36 +520,50 @@ SparseVoxelOctree SparseVoxelOctree::build_from(const VoxelSet& set, std::vector
     // The open node of each level, and its child mask so far (stored when it closes).
     std::array<uint32_t, kMaxVoxelDepth + 1> next = ch.first, open{}, mask{};
     const size_t last = static_cast<size_t>(depth) - 1;
-    bool bad = false;
-    for (size_t i = ch.begin; i < ch.end; ++i) {
-      const uint64_t c = codes[i];
-      const int L = i == ch.begin ? k : split_level(c, codes[i - 1], depth, k);
-      if (L < depth) {
-        if (i > ch.begin)
-          for (int l = depth - 1; l >= L; --l) {
+    // Locals (not reloaded through the captures after every store) and the voxels' mask,
+    // mask[last], in a register while its node is open.
+    const uint64_t* const code = codes;
+    const VoxelAttributes* const leaf = leaves;
+    SvoNode* const node = nodes;
+    const size_t begin = ch.begin, end = ch.end;
+    const int d = depth, top = k;
+    uint32_t leaf_mask = 0;
+    FiniteCheck check;
+    uint64_t prev = code[begin] ^ (uint64_t{1} << 63);  // differs in bit 63: the first voxel opens level k
+    for (size_t i = begin; i < end; ++i) {
+      const uint64_t c = code[i];
+      const int L = split_level(c, prev, d, top);
+      prev = c;
+      if (L < d) {
+        mask[last] = leaf_mask;
+        if (i > begin)
+          for (int l = d - 1; l >= L; --l) {
             const auto ul = static_cast<size_t>(l);
-            nodes[open[ul]].mask = mask[ul];
+            node[open[ul]].mask = mask[ul];
             close(open[ul], l);
           }
-        for (int l = L; l < depth; ++l) {
+        for (int l = L; l < d; ++l) {
           const auto ul = static_cast<size_t>(l);
           const uint32_t idx = next[ul]++;
           open[ul] = idx;
-          mask[ul] = 0;
-          nodes[idx].first_child = ul == last ? static_cast<uint32_t>(i) : next[ul + 1];
+          node[idx].first_child = ul == last ? static_cast<uint32_t>(i) : next[ul + 1];
         }
-        for (int l = std::max(L - 1, k); l < depth - 1; ++l)
-          mask[static_cast<size_t>(l)] |= 1u << ((c >> (3 * (depth - 1 - l))) & 7u);
+        // The voxel's bits: a child of the node of level L - 1 (open before), the first of the
+        // nodes it opens (their masks start from it).
+        if (L > top) mask[static_cast<size_t>(L) - 1] |= 1u << ((c >> (3 * (d - L))) & 7u);
+        for (int l = L; l < d - 1; ++l) mask[static_cast<size_t>(l)] = 1u << ((c >> (3 * (d - 1 - l))) & 7u);
+        leaf_mask = 0;
       }
-      mask[last] |= 1u << (c & 7u);
-      bad |= !finite_attrs(leaves[i]);
+      leaf_mask |= 1u << (c & 7u);
+      check.add(leaf[i]);
     }
+    mask[last] = leaf_mask;
     for (int l = depth - 1; l >= k; --l) {
       const auto ul = static_cast<size_t>(l);
       nodes[open[ul]].mask = mask[ul];
       close(open[ul], l);
     }
-    ch.bad_attrs = bad;
+    ch.bad_attrs = check.bad();
   });
   for (const Chunk& ch : chunks) {
     if (!ch.bad_attrs) continue;
