@@ -1083,7 +1083,10 @@ Bvh Bvh::build(const TriangleInput& input, const BvhOptions& options, BuildInfo*
         const int kmax = static_cast<int>(std::min<uint32_t>(sub_leaves[j], W));
         const float node = m[kmax - 1] + area * kNodeCost;
         cj[0] = std::min(leaf, node);
-        sj[0] = leaf <= node ? 1 : 0;
+        // A leaf only within max_leaf: where both costs overflowed to inf (coordinates near the
+        // float range's end; the sums over a big subtree exceed it), inf <= inf chose a leaf of
+        // the whole subtree. Finite costs decide as before (leaf is kInf beyond max_leaf).
+        sj[0] = sub_count[j] <= max_leaf && leaf <= node ? 1 : 0;
         // The running best in a register: read back from cj, it waited on the store just made
         // (store forwarding every step; the byte stores to sj may alias cj, so the compiler
         // could not keep it).
@@ -1118,7 +1121,12 @@ Bvh Bvh::build(const TriangleInput& input, const BvhOptions& options, BuildInfo*
         } else {
           float best = kInf;  // the best split of (at most) W slots below the node itself
           int slots = W;
-          const int a = best_split(b, slots, best);
+          int a = best_split(b, slots, best);
+          // No split has a finite cost (every one overflowed to inf, or is NaN from an infinite
+          // extent times a flat one): any split is valid, and a = 0 would hand gather() zero
+          // slots, which it cannot split (it read split[-1] and recursed until the stack ran
+          // out). One slot left, the rest right (slots >= 2: b is not a leaf).
+          if (a == 0) a = 1;
           gather(gather, bin[b].left_first, a, list, k);
           gather(gather, bin[b].left_first + 1, slots - a, list, k);
           // Largest child first: any-hit walks visit the children in slot order, and a larger
