@@ -136,6 +136,16 @@ __attribute__((target("avx2"))) inline __m128 half_area_x3(__m256 b0, __m256 b1,
   return _mm_add_ps(_mm_add_ps(_mm_mul_ps(ex, ey), _mm_mul_ps(ey, ez)), _mm_mul_ps(ez, ex));
 }
 
+/// _mm256_blendv_ps(a, b, mask) as one instruction. GCC 12 lowers the intrinsic to a select
+/// on "mask < 0" and, not knowing that a permuted compare result is all ones or all zeros,
+/// rebuilds the mask with a vpcmpgtd per call (one of ~25 instructions per reference in the
+/// partition loop).
+__attribute__((target("avx2"), always_inline)) inline __m256 blendv_asm(__m256 a, __m256 b, __m256 mask) {
+  __m256 r;
+  __asm__("vblendvps %3, %2, %1, %0" : "=x"(r) : "x"(a), "x"(b), "x"(mask));
+  return r;
+}
+
 /// One bin of the AVX2 split search: its (lo, -hi) box and primitive count, 64 bytes so that a
 /// bin index scaled by 64 addresses both.
 struct alignas(64) BinRec {
@@ -407,25 +417,32 @@ class BvhBuilder {
         n = _mm_add_epi32(n, cntv[k]);
         const __m128 area = half_area_x3(acc0, acc1, acc2);
         const __m128 blk = _mm_cvtepi32_ps(_mm_srli_epi32(_mm_add_epi32(n, three), 2));
-        rcost[k] = _mm_blendv_ps(_mm_mul_ps(area, blk), vinf, _mm_castsi128_ps(_mm_cmpeq_epi32(n, zero)));
+        rcost[k] = _mm_mul_ps(area, blk);
       }
     }
+    // No explicit skip of planes with an empty side (find_split's "n == 0 || right_cost ==
+    // kInf"): such a plane's cost here is never below bestc, so the same planes win. An empty
+    // side's box is all (inf, inf) (bins are grown together with their counts), so its half
+    // area is inf and times 0 blocks NaN; a NaN side makes the cost NaN, and a right cost of
+    // inf (empty or overflowed) adds to a left term that is >= 0, inf or NaN, giving inf or NaN.
+    // Neither compares below bestc (strict <, starting at inf), exactly as the skipped kInf.
     __m128 bestc = vinf;
-    __m128i bestk = zero;
+    __m128i bestk = zero, kv = zero;
+    const __m128i one = _mm_set1_epi32(1);
     {
       __m256 acc0 = empty, acc1 = empty, acc2 = empty;
       __m128i n = zero;
       for (int k = 1; k < nb; ++k) {
+        kv = _mm_add_epi32(kv, one);  // k in every lane
         acc0 = _mm256_min_ps(acc0, b0[k - 1].box), acc1 = _mm256_min_ps(acc1, b1[k - 1].box),
         acc2 = _mm256_min_ps(acc2, b2[k - 1].box);
         n = _mm_add_epi32(n, cntv[k - 1]);
         const __m128 area = half_area_x3(acc0, acc1, acc2);
         const __m128 blk = _mm_cvtepi32_ps(_mm_srli_epi32(_mm_add_epi32(n, three), 2));
-        const __m128 skip = _mm_or_ps(_mm_castsi128_ps(_mm_cmpeq_epi32(n, zero)), _mm_cmpeq_ps(rcost[k], vinf));
-        const __m128 cost = _mm_blendv_ps(_mm_add_ps(_mm_mul_ps(area, blk), rcost[k]), vinf, skip);
+        const __m128 cost = _mm_add_ps(_mm_mul_ps(area, blk), rcost[k]);
         const __m128 better = _mm_cmplt_ps(cost, bestc);
         bestc = _mm_blendv_ps(bestc, cost, better);
-        bestk = _mm_blendv_epi8(bestk, _mm_set1_epi32(k), _mm_castps_si128(better));
+        bestk = _mm_blendv_epi8(bestk, kv, _mm_castps_si128(better));
       }
     }
     alignas(16) float bc[4];
@@ -471,8 +488,10 @@ class BvhBuilder {
                                                                Box4& lcb, Box4& rcb) const {
     // int(min(x, bins - 1)) < bin  <=>  x < bin for every x (bin <= bins - 1; NaN goes right
     // both ways), so the float compare makes exactly find_split's decision.
-    const __m128 vmin = _mm_set1_ps(split.bin_min), vscale = _mm_set1_ps(split.bin_scale);
-    const __m128 vbin = _mm_set1_ps(static_cast<float>(split.bin));
+    // The test runs on (c, c) in both halves, so its mask is already 256 bits wide for the
+    // blends (a 128-bit test needed a lane copy and a sign fix-up, 2 of ~25 instructions).
+    const __m256 vmin = _mm256_set1_ps(split.bin_min), vscale = _mm256_set1_ps(split.bin_scale);
+    const __m256 vbin = _mm256_set1_ps(static_cast<float>(split.bin));
     const __m256 neg_hi = _mm256_setr_ps(0.0f, 0.0f, 0.0f, 0.0f, -0.0f, -0.0f, -0.0f, -0.0f);
     const __m256 empty = _mm256_set1_ps(kInf);
     __m256 lb = _mm256_xor_ps(_mm256_setr_m128(lcb.lo, lcb.hi), neg_hi);
@@ -483,15 +502,15 @@ class BvhBuilder {
     for (PrimRef* k = left; k != end; ++k) {
       const __m256 v = _mm256_load_ps(k->lo);
       const __m128 c = _mm_add_ps(_mm256_castps256_ps128(v), _mm256_extractf128_ps(v, 1));
-      const __m128 lt = _mm_cmplt_ps(_mm_mul_ps(_mm_sub_ps(c, vmin), vscale), vbin);
-      const __m128 m = _mm_permute_ps(lt, _MM_SHUFFLE(Axis, Axis, Axis, Axis));
-      const __m256 m8 = _mm256_setr_m128(m, m);
-      const __m256 cc = _mm256_xor_ps(_mm256_setr_m128(c, c), neg_hi);  // (c, -c)
-      lb = _mm256_min_ps(lb, _mm256_blendv_ps(empty, cc, m8));
-      rb = _mm256_min_ps(rb, _mm256_blendv_ps(cc, empty, m8));
+      const __m256 c2 = _mm256_setr_m128(c, c);
+      const __m256 lt = _mm256_cmp_ps(_mm256_mul_ps(_mm256_sub_ps(c2, vmin), vscale), vbin, _CMP_LT_OQ);
+      const __m256 m8 = _mm256_permute_ps(lt, _MM_SHUFFLE(Axis, Axis, Axis, Axis));
+      const __m256 cc = _mm256_xor_ps(c2, neg_hi);  // (c, -c)
+      lb = _mm256_min_ps(lb, blendv_asm(empty, cc, m8));
+      rb = _mm256_min_ps(rb, blendv_asm(cc, empty, m8));
       _mm256_store_ps(k->lo, _mm256_load_ps(left->lo));
       _mm256_store_ps(left->lo, v);
-      left += _mm_movemask_ps(m) & 1;
+      left += _mm256_movemask_ps(m8) & 1;
     }
     const uint32_t i = static_cast<uint32_t>(left - refs_);
     lb = _mm256_xor_ps(lb, neg_hi), rb = _mm256_xor_ps(rb, neg_hi);
