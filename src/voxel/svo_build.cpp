@@ -25,10 +25,8 @@
 #include "specula/timer.h"
 #include "voxel/voxel_brute.h"
 
-#if defined(__SSE2__)
-#include <emmintrin.h>
+#include <emmintrin.h>  // SSE2: x86-64 baseline
 #include <xmmintrin.h>
-#endif
 
 namespace specula {
 
@@ -50,88 +48,20 @@ constexpr std::array<SlotList, 256> kSlotLists = [] {
 
 /// Averaged attributes of one inner node from its children: \p n children stored contiguously
 /// at \p child, in slot order (the set bits of the node's mask, \p slots). Weights = voxel
-/// counts. \p child_half is the children's half side in world units. kUnitWeights: every weight
-/// is 1 (the children are voxels), so the products by the weights are left out (x * 1.0f == x:
-/// the same result, bit for bit). The reference for the SSE2 version below (kept for targets
-/// without SSE2 and as its specification: both give the same bits).
-template <bool kUnitWeights>
-VoxelAttributes average_children_scalar(const VoxelAttributes* child, const uint32_t* weights, const uint8_t* slots,
-                                        int n, float child_half) {
-  VoxelAttributes out;
-  Vec3 nsum, csum;
-  float refl = 0.0f, transp = 0.0f, ior = 0.0f, wsum = 0.0f;
-  int heaviest = 0;
-  for (int i = 0; i < n; ++i) {
-    const VoxelAttributes& a = child[i];
-    if constexpr (kUnitWeights) {
-      nsum += a.normal;
-      csum += a.colour;
-      refl += a.reflectivity;
-      transp += a.transparency;
-      ior += a.ior;
-      wsum += 1.0f;
-    } else {
-      const float w = static_cast<float>(weights[i]);
-      nsum += a.normal * w;
-      csum += a.colour * w;
-      refl += a.reflectivity * w;
-      transp += a.transparency * w;
-      ior += a.ior * w;
-      wsum += w;
-      if (weights[i] > weights[heaviest]) heaviest = i;
-    }
-  }
-  const float inv = 1.0f / wsum;
-  out.colour = csum * inv;
-  out.reflectivity = refl * inv;
-  out.transparency = transp * inv;
-  out.ior = ior * inv;
-  out.material = child[heaviest].material;
-  Vec3 nrm = normalize(nsum);
-  if (nrm == Vec3{}) nrm = normalize(child[heaviest].normal);
-  if (nrm == Vec3{}) nrm = Vec3{0.0f, 0.0f, 1.0f};
-  out.normal = nrm;
-
-  // Conservative contours: bound dot(n, p - C) over each child's cube intersected with its
-  // slab. Two valid bounds, intersected: the child cube alone (h |n|_1), and the child slab
-  // after writing n = a n_c + r: a [lo_c, hi_c] + [-h |r|_1, h |r|_1].
-  const float l1n = std::fabs(nrm.x) + std::fabs(nrm.y) + std::fabs(nrm.z);
-  float lo = kInf, hi = -kInf;
-  for (int i = 0; i < n; ++i) {
-    const VoxelAttributes& a = child[i];
-    const Vec3 delta{(slots[i] & 1) ? child_half : -child_half, (slots[i] & 2) ? child_half : -child_half,
-                     (slots[i] & 4) ? child_half : -child_half};
-    const float offs = dot(nrm, delta);
-    const float cube = child_half * l1n;
-    float clo = -cube, chi = cube;
-    const float nn = dot(a.normal, a.normal);
-    if (nn > 0.0f) {
-      const float k = dot(nrm, a.normal) / nn;
-      const Vec3 r = nrm - a.normal * k;
-      const float rb = child_half * (std::fabs(r.x) + std::fabs(r.y) + std::fabs(r.z));
-      const float slo = (k >= 0.0f ? k * a.contour_lo : k * a.contour_hi) - rb;
-      const float shi = (k >= 0.0f ? k * a.contour_hi : k * a.contour_lo) + rb;
-      if (std::max(clo, slo) <= std::min(chi, shi)) {
-        clo = std::max(clo, slo);
-        chi = std::min(chi, shi);
-      }
-    }
-    lo = std::min(lo, offs + clo);
-    hi = std::max(hi, offs + chi);
-  }
-  const float pad = 8e-6f * child_half;  // covers the rounding of the sums above
-  out.contour_lo = lo - pad;
-  out.contour_hi = hi + pad;
-  return out;
-}
-
-#if defined(__SSE2__)
-/// average_children_scalar with SSE2, the same operations in the same order on every value, so
-/// the same bits: the sums run over the children in order with the attribute fields as lanes
-/// (normal + red, green + blue + reflectivity + transparency, ior), the contour bounds of four
-/// children at a time run as lanes (selects for the branches; std::max(a, b) is
-/// _mm_max_ps(b, a) and std::min(a, b) is _mm_min_ps(b, a), signed zeros and NaNs included),
-/// then the min/max fold over the children stays sequential in child order.
+/// counts; kUnitWeights: every weight is 1 (the children are voxels) and the products by the
+/// weights are left out (x * 1.0f == x). \p child_half is the children's half side in world
+/// units. Normal: the weighted sum normalised (else the heaviest child's, else +z); material:
+/// the heaviest child's. Conservative contours: dot(n, p - C) bounded over each child's cube
+/// intersected with its slab, as the intersection of two valid bounds: the child cube alone
+/// (h |n|_1), and the child slab after writing n = k n_c + r: k [lo_c, hi_c] + [-h |r|_1,
+/// h |r|_1].
+/// In SSE2 (the x86-64 baseline), with the operations of the scalar formulation it replaced
+/// (git history: svo_build.cpp before 2026-12-02), so the same bits: the sums run over the
+/// children in order with the attribute fields as lanes (normal + red, green + blue +
+/// reflectivity + transparency, ior), the contour bounds of four children at a time run as
+/// lanes (selects for the branches; std::max(a, b) is _mm_max_ps(b, a) and std::min(a, b) is
+/// _mm_min_ps(b, a), signed zeros and NaNs included), then the min/max fold over the children
+/// stays sequential in child order.
 template <bool kUnitWeights>
 [[gnu::always_inline]] inline VoxelAttributes average_children(const VoxelAttributes* child, const uint32_t* weights,
                                                                const uint8_t* slots, int n, float child_half) {
@@ -236,13 +166,6 @@ template <bool kUnitWeights>
   out.contour_hi = hi + pad;
   return out;
 }
-#else
-template <bool kUnitWeights>
-inline VoxelAttributes average_children(const VoxelAttributes* child, const uint32_t* weights, const uint8_t* slots,
-                                        int n, float child_half) {
-  return average_children_scalar<kUnitWeights>(child, weights, slots, n, child_half);
-}
-#endif
 
 // The averaging compiled twice (baseline x86-64 and x86-64-v3, i.e. AVX2: three-operand VEX
 // forms, no register copies), the right one chosen at load time. Both give identical results
@@ -267,21 +190,10 @@ void average_nodes(const VoxelAttributes* child, const uint32_t* weights, uint32
   *out = average_children<false>(child, weights, sl.slot.data(), sl.count, child_half);
 }
 
-/// validate_set's test of one voxel's attributes (every float finite, contour_lo <= contour_hi),
-/// branch-free: x - x is 0 for a finite x and NaN for an infinity or a NaN.
-bool finite_attrs(const VoxelAttributes& a) {
-  static_assert(sizeof(VoxelAttributes) == 48 && offsetof(VoxelAttributes, material) == 44);
-  typedef float Float4 __attribute__((vector_size(16)));
-  Float4 v[3];
-  std::memcpy(static_cast<void*>(v), &a, sizeof v);
-  v[2][3] = 0.0f;  // the material id: not a float
-  const Float4 z = (v[0] - v[0]) + (v[1] - v[1]) + (v[2] - v[2]);
-  return (z[0] + z[1]) + (z[2] + z[3]) == 0.0f && a.contour_lo <= a.contour_hi;
-}
-
-/// finite_attrs over a run of voxels, cheaper: the lanes' x - x summed over all of them (0 while
-/// every float is finite, NaN from the first that is not: NaN + anything is NaN), the
-/// contour_lo <= contour_hi tests or-ed; bad() is true iff finite_attrs fails for some voxel.
+/// validate_set's test of voxel attributes (every float finite, contour_lo <= contour_hi) over a
+/// run of voxels, branch-free: the lanes' x - x summed over all of them (0 while every float is
+/// finite, NaN from the first that is not: NaN + anything is NaN), the contour_lo <= contour_hi
+/// tests or-ed; bad() is true iff some voxel fails.
 class FiniteCheck {
  public:
   void add(const VoxelAttributes& a) {
@@ -303,6 +215,13 @@ class FiniteCheck {
   Float4 acc_{};
   bool unordered_ = false;
 };
+
+/// FiniteCheck of one voxel.
+bool finite_attrs(const VoxelAttributes& a) {
+  FiniteCheck check;
+  check.add(a);
+  return !check.bad();
+}
 
 /// What the parallel checks found invalid: voxel::validate_set() on a copy then throws its exact
 /// message (only on this path, so the copy costs nothing in a valid build).
