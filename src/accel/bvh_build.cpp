@@ -104,6 +104,13 @@ struct Box4 {
   }
 };
 
+/// Vertex \p v of \p pos (\p vcount vertices) as (x, y, z, junk) in one 16-byte load, which
+/// reads the next vertex's x as lane 3; the last vertex, whose 4 bytes after it are not ours,
+/// is assembled with lane 3 = 0 instead.
+inline __m128 load_vertex(const Vec3* pos, size_t vcount, uint32_t v) {
+  return v + 1 < vcount ? _mm_loadu_ps(&pos[v].x) : _mm_setr_ps(pos[v].x, pos[v].y, pos[v].z, 0.0f);
+}
+
 /// Half surface area of a non-empty box, all in registers (the sweeps call this ~2 x bins x 3
 /// times per node, which is most of the build time on small nodes).
 inline float half_area4(__m128 lo, __m128 hi) {
@@ -783,11 +790,7 @@ Bvh Bvh::build(const TriangleInput& input, const BvhOptions& options, BuildInfo*
       const uint32_t* const idx = input.indices.data();
       const Vec3* const pos = input.positions.data();
       uint32_t packed = compact ? *compact : 0;
-      const auto load = [&](uint32_t v) {
-        const Vec3& p = pos[v];
-        // A 16-byte load reads the next vertex's x too (lane 3, masked off); not the last.
-        return v + 1 < vcount ? _mm_and_ps(_mm_loadu_ps(&p.x), xyz) : _mm_setr_ps(p.x, p.y, p.z, 0.0f);
-      };
+      const auto load = [&](uint32_t v) { return _mm_and_ps(load_vertex(pos, vcount, v), xyz); };  // lane 3 = 0
       Box4 box, cbox;  // in registers for the loop; rb is behind a reference
       for (uint32_t i = begin; i < end; ++i) {
         const uint32_t i0 = idx[3 * size_t{i}], i1 = idx[3 * size_t{i} + 1], i2 = idx[3 * size_t{i} + 2];
@@ -942,11 +945,6 @@ Bvh Bvh::build(const TriangleInput& input, const BvhOptions& options, BuildInfo*
       const uint32_t* const idx = input.indices.data();
       const Vec3* const pos = input.positions.data();
       const size_t vcount = input.positions.size();
-      // Each vertex as one 16-byte load (not the last vertex, whose 4 bytes after it are not
-      // ours; lane 3 is dropped by the transpose).
-      const auto vertex = [pos, vcount](uint32_t v) {
-        return v + 1 < vcount ? _mm_loadu_ps(&pos[v].x) : _mm_setr_ps(pos[v].x, pos[v].y, pos[v].z, 0.0f);
-      };
       const __m128 nan4 = _mm_set1_ps(std::numeric_limits<float>::quiet_NaN());
       // Prefetch distances in blocks: the index triples well ahead, the vertices they name a
       // little ahead (as the BVH-order copy of the triangles did before).
@@ -976,7 +974,7 @@ Bvh Bvh::build(const TriangleInput& input, const BvhOptions& options, BuildInfo*
           blk.index[lane] = id;
           const bool on = id != kNoHit;
           const uint32_t* ix = idx + 3 * size_t{on ? id : 0};
-          for (int k = 0; k < 3; ++k) p[k][lane] = on ? vertex(ix[k]) : nan4;
+          for (int k = 0; k < 3; ++k) p[k][lane] = on ? load_vertex(pos, vcount, ix[k]) : nan4;  // lane 3: dropped by the transpose
         }
         float* out = &blk.v[0][0][0];  // component j = 3 * vertex + axis at out + 4 * j
         for (int k = 0; k < 3; ++k) {
