@@ -733,10 +733,10 @@ void process_brick(const Context& cx, uint64_t brick, const BinEntry* first, con
     sl.col += w * cur_col;
     sl.ti += w * cur_ti;
     ++sl.count;
-    if (area > sl.best_area) {
-      sl.best_area = area;
-      sl.best_tri = cur_tri;
-    }
+    // The largest part's triangle (the first of equals), selected without a branch.
+    const bool larger = area > sl.best_area;
+    sl.best_tri = larger ? cur_tri : sl.best_tri;
+    sl.best_area = larger ? area : sl.best_area;
     s.pairs.push_back({slot, cur_tri, cell.first, cell.count});
   };
 
