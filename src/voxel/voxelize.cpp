@@ -38,9 +38,11 @@
 #include <cinttypes>
 #include <cmath>
 #include <cstdio>
+#include <cstring>
 #include <limits>
 #include <span>
 #include <string>
+#include <type_traits>
 
 #include "specula/error.h"
 #include "specula/timer.h"
@@ -481,29 +483,39 @@ struct Poly {
 /// Cuts \p in by the plane x[axis] = c into its closed halves: \p below (x <= c) and
 /// \p above (x >= c). Vertices on the plane go to both (a touching polygon stays non-empty).
 inline void split(const Poly& in, int axis, double c, Poly& below, Poly& above) {
+  // Branch-free: the crossing point is computed for every edge and written at both halves'
+  // ends, but only counted when the edge crosses (whether it does is data-dependent, and was
+  // the clipping's most mispredicted branch). Counted vertices are the same numbers as a
+  // branching loop gives.
+  typedef int64_t Lanes4 __attribute__((vector_size(32)));
+  const Lanes4 on_axis = {axis == 0 ? -1 : 0, axis == 1 ? -1 : 0, axis == 2 ? -1 : 0, 0};
+  const Vertex4 cv = {c, c, c, c};
   int nb = 0, na = 0;
   const int n = in.n;
-  const Vertex4* a = &in.p[n - 1];
-  double da = (*a)[axis] - c;
+  Vertex4 a = in.p[n - 1];
+  double da = a[axis] - c;
   for (int i = 0; i < n; ++i) {
-    const Vertex4& b = in.p[i];
+    const Vertex4 b = in.p[i];
     const double db = b[axis] - c;
     // The edge a -> b crosses the plane: da and db of strictly opposite signs, i.e. the
-    // smaller below 0 and the larger above (a min, a max and two comparisons, no branches
-    // between them; the same test as (da < 0 && db > 0) || (da > 0 && db < 0)).
-    if (std::min(da, db) < 0.0 && std::max(da, db) > 0.0) {
-      const double t = da / (da - db);
-      Vertex4 q = *a + (b - *a) * t;
-      q[axis] = c;
-      below.p[nb] = q;
-      above.p[na] = q;
-      ++nb, ++na;
-    }
+    // smaller below 0 and the larger above (the same test as (da < 0 && db > 0) ||
+    // (da > 0 && db < 0)). A non-crossing edge divides by 1 (no division by zero).
+    const bool cross = (std::min(da, db) < 0.0) & (std::max(da, db) > 0.0);
+    // The denominator picked without a branch (a conditional here compiled to one).
+    const uint64_t keep = uint64_t{0} - static_cast<uint64_t>(cross);
+    const double den = std::bit_cast<double>((std::bit_cast<uint64_t>(da - db) & keep) |
+                                             (std::bit_cast<uint64_t>(1.0) & ~keep));
+    const double t = da / den;
+    const Vertex4 q = on_axis ? cv : a + (b - a) * t;
+    below.p[nb] = q;
+    above.p[na] = q;
+    nb += cross;
+    na += cross;
     below.p[nb] = b;
     above.p[na] = b;
     nb += db <= 0.0;
     na += db >= 0.0;
-    a = &b;
+    a = b;
     da = db;
   }
   below.n = std::min(nb, kPolyMax);
@@ -604,6 +616,7 @@ struct Cell {
   uint16_t inside = 0;  ///< 1: the part certainly meets the voxel's interior (exact tests can be skipped)
   float area = 0.0f;    ///< area of the part, in voxel-side^2 units
 };
+static_assert(std::is_trivially_copyable_v<Cell>, "cells are cleared with memset");
 
 /// Per-thread scratch of the brick stage.
 struct Scratch {
@@ -720,10 +733,10 @@ void process_brick(const Context& cx, uint64_t brick, const BinEntry* first, con
     sl.col += w * cur_col;
     sl.ti += w * cur_ti;
     ++sl.count;
-    if (area > sl.best_area) {
-      sl.best_area = area;
-      sl.best_tri = cur_tri;
-    }
+    // The largest part's triangle (the first of equals), selected without a branch.
+    const bool larger = area > sl.best_area;
+    sl.best_tri = larger ? cur_tri : sl.best_tri;
+    sl.best_area = larger ? area : sl.best_area;
     s.pairs.push_back({slot, cur_tri, cell.first, cell.count});
   };
 
@@ -732,7 +745,11 @@ void process_brick(const Context& cx, uint64_t brick, const BinEntry* first, con
   // the projection onto the normal's dominant axis), its vertices relative to the voxel and
   // whether it certainly meets the voxel's interior. Cost ~ the number of parts.
   auto cut_parts = [&](const TriBox& t) {
-    s.cells.assign(static_cast<size_t>(rn[0]) * rn[1] * rn[2], Cell{});
+    // Only the range's cells are cleared (memset: Cell is trivially copyable); the vector
+    // keeps its size between triangles.
+    const size_t ncells = static_cast<size_t>(rn[0]) * rn[1] * rn[2];
+    if (s.cells.size() < ncells) s.cells.resize(ncells);
+    std::memset(static_cast<void*>(s.cells.data()), 0, ncells * sizeof(Cell));
     Poly tri;
     tri.n = 3;
     for (int i = 0; i < 3; ++i) {
