@@ -1,8 +1,13 @@
-// Fresnel reflectance and Snell refraction against the textbook formulas.
+// Fresnel reflectance and Snell refraction against the textbook formulas; the Blinn-Phong
+// power against powf.
 #include <gtest/gtest.h>
 
 #include <cmath>
+#include <cstring>
+#include <limits>
+#include <random>
 
+#include "render/phong.h"
 #include "specula/render.h"
 
 using namespace specula;
@@ -130,4 +135,43 @@ TEST(Refract, NormalIncidenceGoesStraightThrough) {
   EXPECT_NEAR(t.x, 0.0f, 1e-7f);
   EXPECT_NEAR(t.y, 0.0f, 1e-7f);
   EXPECT_NEAR(t.z, -1.0f, 1e-7f);
+}
+
+TEST(PhongPower, SquaringMatchesPowfWithinOneUlpAndIsExactAtTheEnds) {
+  // Whole exponents go by squaring in double; each result must be within one ulp of powf (both
+  // are close to correctly rounded) and almost always equal to it; 0 and 1 map exactly, and
+  // powers far below the smallest subnormal round to +0 as powf's do.
+  std::mt19937 rng(5);
+  std::uniform_real_distribution<float> u(0.0f, 1.0f);
+  const uint32_t exponents[] = {1, 2, 3, 7, 16, 30, 60, 127, 400, 1000, 4095, 4096};
+  size_t equal = 0, total = 0;
+  for (const uint32_t n : exponents) {
+    const float e = static_cast<float>(n);
+    ASSERT_EQ(whole_exponent(e), n);
+    EXPECT_EQ(phong_power(1.0f, e, n), 1.0f);
+    EXPECT_EQ(phong_power(0.0f, e, n), 0.0f);
+    for (int i = 0; i < 20000; ++i) {
+      // Uniform in [0, 1] and crowded towards 1, where the lobe is non-zero.
+      const float x = i % 2 == 0 ? u(rng) : 1.0f - std::ldexp(u(rng), -static_cast<int>(i % 24));
+      const float want = std::pow(x, e), got = phong_power(x, e, n);
+      ASSERT_FALSE(std::signbit(got)) << x << "^" << n;
+      if (want == 0.0f) {
+        EXPECT_LE(got, std::numeric_limits<float>::denorm_min()) << x << "^" << n;
+        continue;
+      }
+      uint32_t a = 0, b = 0;
+      std::memcpy(&a, &want, 4);
+      std::memcpy(&b, &got, 4);
+      EXPECT_LE(a > b ? a - b : b - a, 1u) << x << "^" << n << ": powf " << want << ", squaring " << got;
+      equal += a == b;
+      ++total;
+    }
+  }
+  EXPECT_GT(equal, total * 99 / 100);
+}
+
+TEST(PhongPower, OtherExponentsAreLeftToPowf) {
+  for (const float e : {0.0f, 0.5f, 2.5f, -3.0f, 4097.0f, 1e9f, std::nanf(""), INFINITY})
+    EXPECT_EQ(whole_exponent(e), 0u) << e;
+  EXPECT_EQ(phong_power(0.7f, 2.5f, 0), std::pow(0.7f, 2.5f));
 }

@@ -27,6 +27,7 @@
 #include <optional>
 #include <string>
 
+#include "render/phong.h"
 #include "core/hash.h"
 #include "render/sky.h"
 #include "specula/error.h"
@@ -194,6 +195,8 @@ struct ShadeMaterial {
   float phong_exponent = 0.0f;
   /// powf(nh, phong_exponent) is exactly +0 for 0 < nh < spec_zero_below (0: no shortcut).
   float spec_zero_below = 0.0f;
+  /// whole_exponent(phong_exponent): non-zero when the power is computed by squaring.
+  uint32_t phong_int = 0;
   float refl = 0.0f, trans = 0.0f;  ///< mirror and dielectric weights, clamped and normalised
   float ior = 1.0f;
   bool has_spec = false;
@@ -262,6 +265,7 @@ ShadeMaterial make_shade_material(const Material& m, const Vec3& ambient) {
   sm.emission = m.emission;
   sm.phong_exponent = m.phong_exponent;
   sm.spec_zero_below = spec_zero_below(m.phong_exponent);
+  sm.phong_int = whole_exponent(m.phong_exponent);
   sm.has_spec = max_component(m.specular) > 0.0f;
   finish_shade_material(sm, m.diffuse, m.reflectivity, m.transparency, m.ior, ambient);
   return sm;
@@ -369,7 +373,7 @@ SPECULA_OPAQUE float sample_rotation(uint32_t global_pixel) {
     if (m.has_spec) {
       const Vec3 h = normalize(l - view_dir);
       const float nh = std::max(0.0f, dot(ns_f, h));
-      if (nh > 0.0f) f += m.specular * (nh < m.spec_zero_below ? 0.0f : std::pow(nh, m.phong_exponent));
+      if (nh > 0.0f) f += m.specular * (nh < m.spec_zero_below ? 0.0f : phong_power(nh, m.phong_exponent, m.phong_int));
     }
     c = weight * f * irradiance;
     return max_component(c) > 0.0f;
