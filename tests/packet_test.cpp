@@ -91,9 +91,9 @@ struct PacketCheck {
 
 /// Traces \p rays with every kernel, packets off and on, in one batch and in odd-sized chunks
 /// (tail groups of every size), and expects bit-identical hit records and transmittance: packet
-/// = single ray = brute force.
+/// = single ray = brute force. \p options: the build (kernel and packets are set per run).
 void expect_packets_match(const TriangleInput& input, const std::vector<Ray>& rays, const std::string& label,
-                          const PacketCheck& check = {}) {
+                          const PacketCheck& check = {}, const BvhOptions& options = {}) {
   const size_t n = rays.size();
   std::vector<Hit> hb(n);
   std::vector<Vec3> tb(n);
@@ -106,7 +106,7 @@ void expect_packets_match(const TriangleInput& input, const std::vector<Ray>& ra
   }
   for (const BvhKernel kernel : test::test_kernels()) {
     const std::string where = label + " [" + bvh_kernel_name(kernel) + "]";
-    BvhOptions single_opt, packet_opt;
+    BvhOptions single_opt = options, packet_opt = options;
     single_opt.kernel = packet_opt.kernel = kernel;
     single_opt.packets = false;
     packet_opt.packets = true;
@@ -226,6 +226,53 @@ TEST(BvhPackets, RaysThroughSharedEdgesAndVertices) {
   expect_packets_match(grid.input(), rays, "grid edges");
   std::vector<Vec3> glass(grid.triangle_count(), Vec3{0.5f, 0.6f, 0.7f});
   expect_packets_match(grid.input(glass), rays, "grid edges, transparent (half-open edges)");
+}
+
+TEST(BvhPackets, FrustumCulledLeafTrianglesMatchSingleRays) {
+  // Leaves of up to 16 triangles (a high traversal cost keeps the SAH from splitting them) that
+  // a packet's frustum covers only in part: the leaf loops skip the triangles whose bounding box
+  // lies outside the frustum (frustum_block()). Axis-aligned grids (flat boxes, rays exactly
+  // through vertices and edges, which lie on those boxes' faces and corners), a grid far from
+  // the origin, a soup with degenerate triangles; narrow packets (high resolution: the block
+  // test rejects most triangles) and wide ones (it stops paying and switches itself off).
+  const Mesh grid = test::make_grid(32, 1.0f, 0.0f, 0.0f, 0.0f);
+  const Mesh far_grid = test::make_grid(40, 0.125f, 1000.0f, -2000.0f, 512.0f);
+  const Mesh soup = test::make_soup(3000, 45);
+  BvhOptions big_leaves;
+  big_leaves.traversal_cost = 8.0f;
+  PacketCheck check;
+  check.brute_every = 3;
+  for (const Mesh* m : {&grid, &far_grid, &soup}) {
+    const std::string name = m == &grid ? "grid" : m == &far_grid ? "far grid" : "soup";
+    for (const Vec3 from : {Vec3{0.2f, 1.0f, 0.3f}, Vec3{-0.6f, 0.5f, 0.4f}}) {
+      std::vector<Ray> rays = block_camera_rays(m->bounds(), from, 160, 120);  // narrow packets
+      const std::vector<Ray> wide = block_camera_rays(m->bounds(), from, 24, 24, 4.0f);  // wide ones
+      rays.insert(rays.end(), wide.begin(), wide.end());
+      expect_packets_match(m->input(), rays, name + " camera, big leaves", check, big_leaves);
+      const auto bvh = build_tracer(AccelKind::Bvh, m->input());
+      const Vec3 light = m->bounds().center() + normalize(from + Vec3{0.3f, 1.0f, -0.2f}) * 50.0f;
+      PacketCheck shadow_check = check;
+      shadow_check.expect_hits = m == &soup;  // a flat grid casts no shadow on itself
+      expect_packets_match(m->input(), shadow_rays(*bvh, rays, light), name + " shadow, big leaves", shadow_check,
+                           big_leaves);
+    }
+  }
+  // Rays exactly through the grid's vertices and edge midpoints (power-of-two heights: exact
+  // shear, edge functions exactly zero), 4x4 of them per packet: each packet's frustum just
+  // reaches the triangles around its 4x4 vertices, whose boxes it touches on faces and corners.
+  std::vector<Ray> rays;
+  for (const Vec3 eye : {Vec3{16.0f, 16.0f, 16.0f}, Vec3{8.0f, 32.0f, 24.0f}, Vec3{5.3f, 9.0f, 7.1f}})
+    for (int bz = 0; bz < 32; bz += 4)
+      for (int bx = 0; bx < 32; bx += 4)
+        for (const float off : {0.0f, 0.5f})
+          for (int z = bz; z < bz + 4; ++z)
+            for (int x = bx; x < bx + 4; ++x)
+              rays.push_back(test::make_ray(eye, Vec3{static_cast<float>(x) + off, 0.0f, static_cast<float>(z)} - eye));
+  check.brute_every = 1;
+  expect_packets_match(grid.input(), rays, "grid vertices and edges, big leaves", check, big_leaves);
+  std::vector<Vec3> glass(grid.triangle_count(), Vec3{0.5f, 0.6f, 0.7f});
+  expect_packets_match(grid.input(glass), rays, "grid vertices and edges, big leaves, transparent", check,
+                       big_leaves);
 }
 
 TEST(BvhPackets, MixedActiveMasksZeroComponentsAndNaN) {
