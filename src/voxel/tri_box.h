@@ -134,14 +134,17 @@ inline bool sat_overlap(const TriBox& t, const LatticeBox& b) {
 
 /// Seed 000's shortcut: some vertex of the triangle lies in the closed box (implies overlap).
 inline bool vertex_inside(const TriBox& t, const LatticeBox& b) {
-  // Bitwise ands: one result from 18 comparisons, without a branch per comparison.
-  bool any = false;
+  // Bitwise ands of the comparisons as integers: one result from 18 comparisons, without a
+  // branch per comparison (&& would branch on each).
+  int any = 0;
   for (int i = 0; i < 3; ++i) {
     const int64_t* v = t.v[i];
-    any |= (v[0] >= b.lo[0]) & (v[0] <= b.lo[0] + b.size) & (v[1] >= b.lo[1]) & (v[1] <= b.lo[1] + b.size) &
-           (v[2] >= b.lo[2]) & (v[2] <= b.lo[2] + b.size);
+    const int64_t hi[3] = {b.lo[0] + b.size, b.lo[1] + b.size, b.lo[2] + b.size};
+    int in = 1;
+    for (int k = 0; k < 3; ++k) in &= static_cast<int>(v[k] >= b.lo[k]) & static_cast<int>(v[k] <= hi[k]);
+    any |= in;
   }
-  return any;
+  return any != 0;
 }
 
 }  // namespace specula::voxel

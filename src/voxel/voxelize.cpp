@@ -500,7 +500,8 @@ inline void split(const Poly& in, int axis, double c, Poly& below, Poly& above) 
     // The edge a -> b crosses the plane: da and db of strictly opposite signs, i.e. the
     // smaller below 0 and the larger above (the same test as (da < 0 && db > 0) ||
     // (da > 0 && db < 0)). A non-crossing edge divides by 1 (no division by zero).
-    const bool cross = (std::min(da, db) < 0.0) & (std::max(da, db) > 0.0);
+    // Both comparisons evaluated and combined as integers (&& would branch on the first).
+    const bool cross = (static_cast<int>(std::min(da, db) < 0.0) & static_cast<int>(std::max(da, db) > 0.0)) != 0;
     // The denominator picked without a branch (a conditional here compiled to one).
     const uint64_t keep = uint64_t{0} - static_cast<uint64_t>(cross);
     const double den = std::bit_cast<double>((std::bit_cast<uint64_t>(da - db) & keep) |
