@@ -27,8 +27,8 @@
 #include <optional>
 #include <string>
 
-#include "render/phong.h"
 #include "core/hash.h"
+#include "render/phong.h"
 #include "render/sky.h"
 #include "specula/error.h"
 #include "specula/render.h"
