@@ -136,10 +136,10 @@ inline bool sat_overlap(const TriBox& t, const LatticeBox& b) {
 inline bool vertex_inside(const TriBox& t, const LatticeBox& b) {
   // Bitwise ands of the comparisons as integers: one result from 18 comparisons, without a
   // branch per comparison (&& would branch on each).
+  const int64_t hi[3] = {b.lo[0] + b.size, b.lo[1] + b.size, b.lo[2] + b.size};
   int any = 0;
   for (int i = 0; i < 3; ++i) {
     const int64_t* v = t.v[i];
-    const int64_t hi[3] = {b.lo[0] + b.size, b.lo[1] + b.size, b.lo[2] + b.size};
     int in = 1;
     for (int k = 0; k < 3; ++k) in &= static_cast<int>(v[k] >= b.lo[k]) & static_cast<int>(v[k] <= hi[k]);
     any |= in;
