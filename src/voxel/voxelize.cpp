@@ -43,6 +43,7 @@
 #include <span>
 #include <string>
 #include <type_traits>
+#include <utility>
 
 #include "specula/error.h"
 #include "specula/timer.h"
@@ -323,6 +324,9 @@ struct PairRec {
   uint32_t vfirst;  ///< first vertex of the triangle's part (clipped polygon) in Scratch::verts
   uint32_t vcount;
 };
+/// Brick levels up to which the bins are sorted with one counter per brick (8^6 = 262,144
+/// counters; depths up to 11), above which by comparison.
+constexpr int kDenseBrickLevel = 6;
 struct BinEntry {
   uint64_t brick;
   uint32_t tri;
@@ -1091,11 +1095,26 @@ VoxelSet voxelize(const VoxelizeInput& input, const VoxelizeOptions& options, Vo
     for (size_t b = 0; b < blocks; ++b) offsets[b + 1] = offsets[b] + block_bins[b].size();
     nbins = offsets[blocks];
     std::vector<BinEntry> bins(nbins);
-    tbb::parallel_for(size_t{0}, blocks, [&](size_t b) {
-      std::copy(block_bins[b].begin(), block_bins[b].end(), bins.begin() + static_cast<std::ptrdiff_t>(offsets[b]));
-      std::vector<BinEntry>().swap(block_bins[b]);
-    });
-    tbb::parallel_sort(bins.begin(), bins.end());
+    if (chk.brick_level <= kDenseBrickLevel) {
+      // Sorted by brick, then triangle, in two linear passes: the blocks hold their entries in
+      // triangle order, so a stable counting sort by brick (one counter per brick of the
+      // level) gives the comparison sort's order.
+      std::vector<size_t> next(size_t{1} << (3 * chk.brick_level), 0);
+      for (const std::vector<BinEntry>& block : block_bins)
+        for (const BinEntry& e : block) ++next[e.brick];
+      size_t pos = 0;
+      for (size_t& c : next) pos += std::exchange(c, pos);
+      for (std::vector<BinEntry>& block : block_bins) {
+        for (const BinEntry& e : block) bins[next[e.brick]++] = e;
+        std::vector<BinEntry>().swap(block);
+      }
+    } else {
+      tbb::parallel_for(size_t{0}, blocks, [&](size_t b) {
+        std::copy(block_bins[b].begin(), block_bins[b].end(), bins.begin() + static_cast<std::ptrdiff_t>(offsets[b]));
+        std::vector<BinEntry>().swap(block_bins[b]);
+      });
+      tbb::parallel_sort(bins.begin(), bins.end());
+    }
     // Brick ranges.
     std::vector<size_t> brick_start;
     for (size_t i = 0; i < nbins; ++i)
