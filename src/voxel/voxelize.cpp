@@ -489,12 +489,15 @@ struct Poly {
 inline void split(const Poly& in, int axis, double c, Poly& below, Poly& above) {
   // Branch-free: the crossing point is computed for every edge and written at both halves'
   // ends, but only counted when the edge crosses (whether it does is data-dependent, and was
-  // the clipping's most mispredicted branch). Counted vertices are the same numbers as a
-  // branching loop gives.
+  // the clipping's most mispredicted branch). An edge that does not cross may divide by zero
+  // (da == db) or give any other number: its point is never counted, so it is overwritten by
+  // the next write or left past the end (floating-point exceptions are not trapped). Counted
+  // vertices are the same numbers as a branching loop gives.
   typedef int64_t Lanes4 __attribute__((vector_size(32)));
   const Lanes4 on_axis = {axis == 0 ? -1 : 0, axis == 1 ? -1 : 0, axis == 2 ? -1 : 0, 0};
   const Vertex4 cv = {c, c, c, c};
-  int nb = 0, na = 0;
+  Vertex4* pb = below.p;
+  Vertex4* pa = above.p;
   const int n = in.n;
   Vertex4 a = in.p[n - 1];
   double da = a[axis] - c;
@@ -503,28 +506,24 @@ inline void split(const Poly& in, int axis, double c, Poly& below, Poly& above) 
     const double db = b[axis] - c;
     // The edge a -> b crosses the plane: da and db of strictly opposite signs, i.e. the
     // smaller below 0 and the larger above (the same test as (da < 0 && db > 0) ||
-    // (da > 0 && db < 0)). A non-crossing edge divides by 1 (no division by zero).
-    // Both comparisons evaluated and combined as integers (&& would branch on the first).
-    const bool cross = (static_cast<int>(std::min(da, db) < 0.0) & static_cast<int>(std::max(da, db) > 0.0)) != 0;
-    // The denominator picked without a branch (a conditional here compiled to one).
-    const uint64_t keep = uint64_t{0} - static_cast<uint64_t>(cross);
-    const double den = std::bit_cast<double>((std::bit_cast<uint64_t>(da - db) & keep) |
-                                             (std::bit_cast<uint64_t>(1.0) & ~keep));
-    const double t = da / den;
+    // (da > 0 && db < 0)). Both comparisons evaluated and combined as integers (&& would
+    // branch on the first).
+    const int cross = static_cast<int>(std::min(da, db) < 0.0) & static_cast<int>(std::max(da, db) > 0.0);
+    const double t = da / (da - db);
     const Vertex4 q = on_axis ? cv : a + (b - a) * t;
-    below.p[nb] = q;
-    above.p[na] = q;
-    nb += cross;
-    na += cross;
-    below.p[nb] = b;
-    above.p[na] = b;
-    nb += db <= 0.0;
-    na += db >= 0.0;
+    *pb = q;
+    *pa = q;
+    pb += cross;
+    pa += cross;
+    *pb = b;
+    *pa = b;
+    pb += static_cast<int>(db <= 0.0);
+    pa += static_cast<int>(db >= 0.0);
     a = b;
     da = db;
   }
-  below.n = std::min(nb, kPolyMax);
-  above.n = std::min(na, kPolyMax);
+  below.n = std::min(static_cast<int>(pb - below.p), kPolyMax);
+  above.n = std::min(static_cast<int>(pa - above.p), kPolyMax);
 }
 
 /// Cuts \p poly into the slabs [lo + c, lo + c + 1] along \p axis, c = 0 .. count - 1 (what lies
