@@ -43,6 +43,7 @@
 #include <span>
 #include <string>
 #include <type_traits>
+#include <utility>
 
 #include "specula/error.h"
 #include "specula/timer.h"
@@ -323,6 +324,9 @@ struct PairRec {
   uint32_t vfirst;  ///< first vertex of the triangle's part (clipped polygon) in Scratch::verts
   uint32_t vcount;
 };
+/// Brick levels up to which the bins are sorted with one counter per brick (8^6 = 262,144
+/// counters; depths up to 11), above which by comparison.
+constexpr int kDenseBrickLevel = 6;
 struct BinEntry {
   uint64_t brick;
   uint32_t tri;
@@ -485,12 +489,15 @@ struct Poly {
 inline void split(const Poly& in, int axis, double c, Poly& below, Poly& above) {
   // Branch-free: the crossing point is computed for every edge and written at both halves'
   // ends, but only counted when the edge crosses (whether it does is data-dependent, and was
-  // the clipping's most mispredicted branch). Counted vertices are the same numbers as a
-  // branching loop gives.
+  // the clipping's most mispredicted branch). An edge that does not cross may divide by zero
+  // (da == db) or give any other number: its point is never counted, so it is overwritten by
+  // the next write or left past the end (floating-point exceptions are not trapped). Counted
+  // vertices are the same numbers as a branching loop gives.
   typedef int64_t Lanes4 __attribute__((vector_size(32)));
   const Lanes4 on_axis = {axis == 0 ? -1 : 0, axis == 1 ? -1 : 0, axis == 2 ? -1 : 0, 0};
   const Vertex4 cv = {c, c, c, c};
-  int nb = 0, na = 0;
+  Vertex4* pb = below.p;
+  Vertex4* pa = above.p;
   const int n = in.n;
   Vertex4 a = in.p[n - 1];
   double da = a[axis] - c;
@@ -499,28 +506,24 @@ inline void split(const Poly& in, int axis, double c, Poly& below, Poly& above) 
     const double db = b[axis] - c;
     // The edge a -> b crosses the plane: da and db of strictly opposite signs, i.e. the
     // smaller below 0 and the larger above (the same test as (da < 0 && db > 0) ||
-    // (da > 0 && db < 0)). A non-crossing edge divides by 1 (no division by zero).
-    // Both comparisons evaluated and combined as integers (&& would branch on the first).
-    const bool cross = (static_cast<int>(std::min(da, db) < 0.0) & static_cast<int>(std::max(da, db) > 0.0)) != 0;
-    // The denominator picked without a branch (a conditional here compiled to one).
-    const uint64_t keep = uint64_t{0} - static_cast<uint64_t>(cross);
-    const double den = std::bit_cast<double>((std::bit_cast<uint64_t>(da - db) & keep) |
-                                             (std::bit_cast<uint64_t>(1.0) & ~keep));
-    const double t = da / den;
+    // (da > 0 && db < 0)). Both comparisons evaluated and combined as integers (&& would
+    // branch on the first).
+    const int cross = static_cast<int>(std::min(da, db) < 0.0) & static_cast<int>(std::max(da, db) > 0.0);
+    const double t = da / (da - db);
     const Vertex4 q = on_axis ? cv : a + (b - a) * t;
-    below.p[nb] = q;
-    above.p[na] = q;
-    nb += cross;
-    na += cross;
-    below.p[nb] = b;
-    above.p[na] = b;
-    nb += db <= 0.0;
-    na += db >= 0.0;
+    *pb = q;
+    *pa = q;
+    pb += cross;
+    pa += cross;
+    *pb = b;
+    *pa = b;
+    pb += static_cast<int>(db <= 0.0);
+    pa += static_cast<int>(db >= 0.0);
     a = b;
     da = db;
   }
-  below.n = std::min(nb, kPolyMax);
-  above.n = std::min(na, kPolyMax);
+  below.n = std::min(static_cast<int>(pb - below.p), kPolyMax);
+  above.n = std::min(static_cast<int>(pa - above.p), kPolyMax);
 }
 
 /// Cuts \p poly into the slabs [lo + c, lo + c + 1] along \p axis, c = 0 .. count - 1 (what lies
@@ -1091,11 +1094,26 @@ VoxelSet voxelize(const VoxelizeInput& input, const VoxelizeOptions& options, Vo
     for (size_t b = 0; b < blocks; ++b) offsets[b + 1] = offsets[b] + block_bins[b].size();
     nbins = offsets[blocks];
     std::vector<BinEntry> bins(nbins);
-    tbb::parallel_for(size_t{0}, blocks, [&](size_t b) {
-      std::copy(block_bins[b].begin(), block_bins[b].end(), bins.begin() + static_cast<std::ptrdiff_t>(offsets[b]));
-      std::vector<BinEntry>().swap(block_bins[b]);
-    });
-    tbb::parallel_sort(bins.begin(), bins.end());
+    if (chk.brick_level <= kDenseBrickLevel) {
+      // Sorted by brick, then triangle, in two linear passes: the blocks hold their entries in
+      // triangle order, so a stable counting sort by brick (one counter per brick of the
+      // level) gives the comparison sort's order.
+      std::vector<size_t> next(size_t{1} << (3 * chk.brick_level), 0);
+      for (const std::vector<BinEntry>& block : block_bins)
+        for (const BinEntry& e : block) ++next[e.brick];
+      size_t pos = 0;
+      for (size_t& c : next) pos += std::exchange(c, pos);
+      for (std::vector<BinEntry>& block : block_bins) {
+        for (const BinEntry& e : block) bins[next[e.brick]++] = e;
+        std::vector<BinEntry>().swap(block);
+      }
+    } else {
+      tbb::parallel_for(size_t{0}, blocks, [&](size_t b) {
+        std::copy(block_bins[b].begin(), block_bins[b].end(), bins.begin() + static_cast<std::ptrdiff_t>(offsets[b]));
+        std::vector<BinEntry>().swap(block_bins[b]);
+      });
+      tbb::parallel_sort(bins.begin(), bins.end());
+    }
     // Brick ranges.
     std::vector<size_t> brick_start;
     for (size_t i = 0; i < nbins; ++i)
