@@ -338,10 +338,10 @@ int voxelize(const VoxelizeCommandOptions& o) {
                g.resolution(), static_cast<double>(g.voxel_size()), static_cast<double>(g.origin.x),
                static_cast<double>(g.origin.y), static_cast<double>(g.origin.z), static_cast<double>(g.side));
   std::fprintf(info, "strategy  %s%s\n", v.strategy.describe().c_str(), v.strategy.exact() ? "" : "  [inexact]");
-  std::fprintf(info, "voxelize  %9.2f ms  (%d thread%s%s; prepare %.2f, bin %.2f, voxels %.2f, gather %.2f ms)\n", st.ms,
+  std::fprintf(info, "voxelize  %9.2f ms  (%d thread%s%s; prepare %.2f, bin %.2f, voxels %.2f ms)\n", st.ms,
                st.threads, st.threads == 1 ? "" : "s",
                o.repeat > 1 ? (", best of " + std::to_string(o.repeat)).c_str() : "", st.prepare_ms, st.bin_ms,
-               st.voxel_ms, st.gather_ms);
+               st.voxel_ms);
   std::fprintf(info, "voxels    %s  (%.2f Mvoxels/s; %s voxel-triangle pairs in %s bricks)\n",
                with_thousands(st.voxels).c_str(), static_cast<double>(st.voxels) / (std::max(st.ms, 1e-9) * 1e3),
                with_thousands(st.pairs).c_str(), with_thousands(st.bricks).c_str());

@@ -95,8 +95,8 @@ struct VoxelizeStats {
   double ms = 0.0;               ///< total wall time of voxelize()
   double prepare_ms = 0.0;       ///< validation, snapping to the lattice, memory estimate
   double bin_ms = 0.0;           ///< bricks of each triangle (tests for those in several), sort
-  double voxel_ms = 0.0;         ///< leaf tests, clipping and averaging per brick
-  double gather_ms = 0.0;        ///< concatenating the bricks into the VoxelSet
+  double voxel_ms = 0.0;         ///< leaf tests, clipping and averaging per brick, and appending
+                                 ///< the bricks' outputs to the VoxelSet (done as they finish)
   uint64_t triangles = 0;
   uint64_t degenerate_triangles = 0;  ///< zero area (still voxelized as segments / points)
   uint64_t voxels = 0;

@@ -15,8 +15,8 @@
 ///     leaf tests (octree descent from the brick node, or the leaf voxels of the triangle's
 ///     bounding box), clips each (voxel, triangle) pair to the voxel for its area and polygon,
 ///     then averages attributes and computes contours per voxel. Output per brick is sorted by
-///     Morton code, so bricks in code order concatenate into a sorted set.
-///  6. gather: concatenate the bricks' outputs.
+///     Morton code; bricks run in code order and each output is appended to the set as soon
+///     as the bricks before it are, so the set is sorted and never copied.
 /// Every sum of floating-point numbers runs in a fixed order (triangle index order inside a
 /// brick), so the result is bit-identical for any thread count.
 #include "specula/voxelize.h"
@@ -28,7 +28,6 @@
 #include <tbb/parallel_reduce.h>
 #include <tbb/parallel_sort.h>
 #include <tbb/task_arena.h>
-#include <sys/mman.h>
 #include <unistd.h>
 
 #include <algorithm>
@@ -40,6 +39,9 @@
 #include <cstdio>
 #include <cstring>
 #include <limits>
+#include <memory>
+#include <mutex>
+#include <new>
 #include <span>
 #include <string>
 #include <type_traits>
@@ -371,7 +373,7 @@ Estimate estimate(const VoxelizeInput& in, const std::vector<LatticePoint>& lat,
   const double brick_voxels = std::ldexp(1.0, 3 * c.brick_bits);
   e.bytes = lattice_bytes(in)                                       // snapped positions
             + 2.0 * e.brick_pair_bound * sizeof(BinEntry)           // bins (+ sort buffer)
-            + 2.0 * e.voxel_bound * per_voxel                       // brick outputs + the set
+            + 2.0 * e.voxel_bound * per_voxel                       // the set + waiting brick outputs
             + c.threads * brick_voxels * (sizeof(uint32_t) + (o.attributes ? sizeof(Slot) : 4.0));
   if (o.attributes)  // pair records and clipped polygons of the bricks in flight
     e.bytes += std::min(e.pair_bound, c.threads * brick_voxels * 8.0) * (sizeof(PairRec) + 9 * sizeof(Float4));
@@ -641,25 +643,6 @@ struct BrickOut {
   std::vector<uint64_t> codes;
   std::vector<VoxelAttributes> attrs;
 };
-
-/// Faults in the whole pages of [p, p + bytes) from the arena's threads in parallel (Linux
-/// MADV_POPULATE_WRITE; contents unchanged; a no-op where unsupported or for small ranges), so
-/// a following serial pass over a fresh allocation writes without taking page faults.
-void prefault(void* p, size_t bytes) {
-#ifdef MADV_POPULATE_WRITE
-  const long page_size = sysconf(_SC_PAGE_SIZE);
-  if (page_size <= 0 || bytes < (size_t{4} << 20)) return;
-  const auto page = static_cast<uintptr_t>(page_size);
-  const uintptr_t b = (reinterpret_cast<uintptr_t>(p) + page - 1) / page, e = (reinterpret_cast<uintptr_t>(p) + bytes) / page;
-  if (e <= b) return;
-  tbb::parallel_for(tbb::blocked_range<uintptr_t>(b, e, 256), [&](const tbb::blocked_range<uintptr_t>& r) {
-    // NOLINTNEXTLINE(performance-no-int-to-ptr): page addresses of our own allocation
-    (void)madvise(reinterpret_cast<void*>(r.begin() * page), (r.end() - r.begin()) * page, MADV_POPULATE_WRITE);
-  });
-#else
-  (void)p, (void)bytes;
-#endif
-}
 
 struct Context {
   const VoxelizeInput& in;
@@ -1134,48 +1117,69 @@ VoxelSet voxelize(const VoxelizeInput& input, const VoxelizeOptions& options, Vo
       s.bits.assign((local_voxels + 63) / 64, 0);
       return s;
     });
-    std::vector<BrickOut> outs(nbricks);
-    // Longest first: bricks in decreasing order of their triangle counts, handed out one at a
-    // time, so the last brick a thread takes is a small one and the threads finish together
-    // (each brick's output has its own slot: the result does not depend on who ran what).
-    std::vector<uint32_t> order(nbricks);
-    for (size_t b = 0; b < nbricks; ++b) order[b] = static_cast<uint32_t>(b);
-    std::stable_sort(order.begin(), order.end(), [&](uint32_t a, uint32_t b) {
-      return brick_start[a + 1] - brick_start[a] > brick_start[b + 1] - brick_start[b];
-    });
+    // Bricks in Morton order, handed out one at a time; each output is appended to the result
+    // in that order as soon as its predecessors are (by whichever thread finds it next in
+    // line), so the set is built while the bricks run, from outputs still in cache, and the
+    // outputs' buffers are reused: no second copy of the set is ever allocated. The result's
+    // capacity is the voxel bound of the estimate (address space only: pages are touched as
+    // voxels arrive); it stays that large.
+    result.grid = chk.grid;
+    try {
+      const auto bound = static_cast<size_t>(std::min(est.voxel_bound, 1e18));
+      result.codes.reserve(bound);
+      if (options.attributes) result.attrs.reserve(bound);
+    } catch (const std::bad_alloc&) {  // no such address space (--no-memory-limit): grow instead
+    }
+    std::mutex mu;
+    std::vector<std::unique_ptr<BrickOut>> done(nbricks);  // finished, waiting for their turn
+    std::vector<std::unique_ptr<BrickOut>> spare;          // emptied outputs, capacity kept
+    size_t appended = 0;                                   // bricks in the result so far
+    bool appending = false;                                // some thread is appending
     std::atomic<size_t> next_brick{0};
     tbb::parallel_for(0, chk.threads, [&](int /*worker*/) {
       Scratch& s = scratch.local();
-      for (size_t i = next_brick.fetch_add(1, std::memory_order_relaxed); i < nbricks;
-           i = next_brick.fetch_add(1, std::memory_order_relaxed)) {
-        const size_t b = order[i];
+      for (size_t b = next_brick.fetch_add(1, std::memory_order_relaxed); b < nbricks;
+           b = next_brick.fetch_add(1, std::memory_order_relaxed)) {
+        std::unique_ptr<BrickOut> out;
+        {
+          const std::lock_guard<std::mutex> lock(mu);
+          if (!spare.empty()) {
+            out = std::move(spare.back());
+            spare.pop_back();
+          }
+        }
+        if (!out) out = std::make_unique<BrickOut>();
+        out->codes.clear();
+        out->attrs.clear();
         process_brick(cx, bins[brick_start[b]].brick, bins.data() + brick_start[b], bins.data() + brick_start[b + 1], s,
-                      outs[b]);
+                      *out);
+        std::unique_ptr<BrickOut> next;
+        {
+          const std::lock_guard<std::mutex> lock(mu);
+          done[b] = std::move(out);
+          if (appending || !done[appended]) continue;  // not this thread's turn to append
+          appending = true;
+          next = std::move(done[appended]);
+        }
+        // This thread appends every finished brick next in line (the check for the next one
+        // and giving up the role happen under the lock, so none is left behind).
+        while (next) {
+          result.codes.insert(result.codes.end(), next->codes.begin(), next->codes.end());
+          if (options.attributes) result.attrs.insert(result.attrs.end(), next->attrs.begin(), next->attrs.end());
+          const std::lock_guard<std::mutex> lock(mu);
+          spare.push_back(std::move(next));
+          next.reset();
+          ++appended;
+          if (appended < nbricks && done[appended])
+            next = std::move(done[appended]);
+          else
+            appending = false;
+        }
       }
     });
     std::vector<BinEntry>().swap(bins);
     st.voxel_ms = phase.ms();
-
-    // 6. gather: the result's pages are faulted in by both threads first (the serial copy
-    // below then runs without page faults: at depth 10 the set is ~200 MiB), then each brick
-    // is appended in order (copied once; no value-initialising resize before the copy).
-    phase.reset();
-    size_t nvox = 0;
-    for (const BrickOut& o : outs) nvox += o.codes.size();
-    result.grid = chk.grid;
-    result.codes.reserve(nvox);
-    if (options.attributes) result.attrs.reserve(nvox);
-    prefault(result.codes.data(), nvox * sizeof(uint64_t));
-    if (options.attributes) prefault(result.attrs.data(), nvox * sizeof(VoxelAttributes));
-    for (BrickOut& o : outs) {
-      result.codes.insert(result.codes.end(), o.codes.begin(), o.codes.end());
-      if (options.attributes) result.attrs.insert(result.attrs.end(), o.attrs.begin(), o.attrs.end());
-    }
-    tbb::parallel_for(size_t{0}, nbricks, [&](size_t b) {
-      std::vector<uint64_t>().swap(outs[b].codes);
-      std::vector<VoxelAttributes>().swap(outs[b].attrs);
-    });
-    st.gather_ms = phase.ms();
+    if (appended != nbricks) throw Error("voxelize: internal error: bricks left unappended");
 
     for (const BinCounters& bc : bin_counters) {
       st.aabb_tests += bc.c.aabb;
