@@ -1125,9 +1125,10 @@ VoxelSet voxelize(const VoxelizeInput& input, const VoxelizeOptions& options, Vo
     // voxels arrive); it stays that large.
     result.grid = chk.grid;
     try {
-      const auto bound = static_cast<size_t>(std::min(est.voxel_bound, 1e18));
-      result.codes.reserve(bound);
-      if (options.attributes) result.attrs.reserve(bound);
+      // (1e15 voxels: far beyond any address space, and below every max_size() here.)
+      const double bound = std::min(est.voxel_bound, 1e15);
+      result.codes.reserve(static_cast<size_t>(bound));
+      if (options.attributes) result.attrs.reserve(static_cast<size_t>(bound));
     } catch (const std::bad_alloc&) {  // no such address space (--no-memory-limit): grow instead
     }
     std::mutex mu;
