@@ -18,6 +18,7 @@
 #include <tbb/blocked_range.h>
 #include <tbb/parallel_for.h>
 
+#include "accel/bvh_optimize.h"
 #include "accel/triangles.h"
 #include "accel/watertight.h"
 #include "accel_test_util.h"
@@ -795,16 +796,18 @@ TEST(BvhTransmittance, ManyLayersMatchBruteForce) {
     rays.push_back(make_ray({u(rng) * 2.4f - 1.2f, u(rng) * 2 - 1, 1}, {u(rng) * 0.2f - 0.1f, 0, -1}, 0.0f, u(rng) * 8.0f));
   std::vector<Vec3> b(rays.size());
   brute->transmittance(rays, b);
-  for (const BvhKernel kernel : test_kernels()) {
+  for (const BvhKernel kernel : test_kernels())
+    for (const BvhQuality quality : {BvhQuality::Fast, BvhQuality::High}) {
     BvhOptions o;
     o.kernel = kernel;
+    o.quality = quality;
     const auto bvh = build_tracer(AccelKind::Bvh, m.input(tr), o);
     std::vector<Vec3> a(rays.size());
     bvh->transmittance(rays, a);
     int partial = 0;
     for (size_t i = 0; i < rays.size(); ++i) {
       // Products over the same factors, multiplied in scene order by both: bit-identical.
-      EXPECT_TRUE(a[i] == b[i]) << bvh_kernel_name(kernel) << " " << describe(rays[i]) << ": bvh (" << a[i].x << ", "
+      EXPECT_TRUE(a[i] == b[i]) << bvh_kernel_name(kernel) << " " << bvh_quality_name(quality) << " " << describe(rays[i]) << ": bvh (" << a[i].x << ", "
                                 << a[i].y << ", " << a[i].z << "), brute (" << b[i].x << ", " << b[i].y << ", " << b[i].z
                                 << ")";
       partial += a[i].x > 0.0f && a[i].x < 0.99f;
@@ -1049,6 +1052,194 @@ TEST(BvhDegenerate, OverflowingSahCostsStillBuildEveryKernelAndMatchBruteForce) 
     rays.push_back(Ray{centroid - d * reach, 0.0f, d, kInf});
   }
   expect_matches_brute(m.input(), rays, "overflowing SAH costs");
+}
+
+// ---------------------------------------------------------------------------------------------
+// BvhQuality::High: the tree built down to single triangles, improved by subtree reinsertion
+// (accel/bvh_optimize.h), leaves chosen by the collapse.
+
+TEST(BvhQuality, NamesParseAndUnknownNamesAreRefused) {
+  EXPECT_EQ(parse_bvh_quality("fast"), BvhQuality::Fast);
+  EXPECT_EQ(parse_bvh_quality("high"), BvhQuality::High);
+  for (const BvhQuality q : {BvhQuality::Fast, BvhQuality::High}) EXPECT_EQ(parse_bvh_quality(bvh_quality_name(q)), q);
+  try {
+    parse_bvh_quality("best");
+    FAIL() << "unknown quality accepted";
+  } catch (const Error& e) {
+    EXPECT_NE(std::string(e.what()).find("fast, high"), std::string::npos) << e.what();
+  }
+  EXPECT_EQ(BvhOptions{}.quality, BvhQuality::Fast);
+}
+
+TEST(BvhQuality, HighQualityTreesMatchBruteForce) {
+  BvhOptions high;
+  high.quality = BvhQuality::High;
+  const Mesh sphere = test::make_sphere(24, 48, 1.5f, {0.2f, -0.1f, 0.3f});
+  expect_matches_brute(sphere.input(), test::make_oracle_rays(sphere.bounds(), sphere.positions, 20000, 31), "sphere high", high);
+  const Mesh grid = test::make_grid(32, 0.25f, -4.0f, -4.0f, 0.5f);
+  expect_matches_brute(grid.input(), test::make_oracle_rays(grid.bounds(), grid.positions, 20000, 32), "grid high", high);
+  const Mesh soup = test::make_soup(3000, 3);
+  high.packets = false;
+  expect_matches_brute(soup.input(), test::make_oracle_rays(soup.bounds(), soup.positions, 20000, 33), "soup high", high);
+  high.max_leaf_size = 1;
+  high.threads = 1;
+  expect_matches_brute(soup.input(), test::make_oracle_rays(soup.bounds(), soup.positions, 5000, 34), "soup high leaf 1", high);
+}
+
+TEST(BvhQuality, HighQualityKeepsInvariantsLowersCostAndIsDeterministic) {
+  const Mesh soup = test::make_soup(40000, 5);  // above the task threshold: the build runs tasks
+  const Mesh sphere = test::make_sphere(40, 80);
+  for (const BvhKernel kernel : test_kernels()) {
+    BvhOptions o;
+    o.kernel = kernel;
+    o.quality = BvhQuality::High;
+    const Bvh bvh = Bvh::build(sphere.input(), o);
+    check_invariants(bvh, sphere.input(), o);
+  }
+  BvhOptions one, two;
+  one.quality = two.quality = BvhQuality::High;
+  one.threads = 1;
+  two.threads = 2;
+  const Bvh a = Bvh::build(soup.input(), one), b = Bvh::build(soup.input(), two);
+  check_invariants(a, soup.input(), one);
+  const BuildInfo& info = a.build_info();
+  // Every leaf of the binary tree is one triangle; reinsertion moved subtrees and lowered the
+  // binary tree's cost below the one it was built with.
+  EXPECT_EQ(info.leaves, a.prim_ids().size());
+  EXPECT_GT(a.prim_ids().size(), soup.triangle_count() / 2);
+  EXPECT_GT(info.reinsertions, 0u);
+  EXPECT_GT(info.optimize_ms, 0.0);
+  EXPECT_LT(info.sah_cost, info.sah_cost_binned);
+  EXPECT_GT(info.sah_cost, 0.5 * info.sah_cost_binned);
+  // Same tree and traversal layout for any thread count (the optimisation is serial).
+  EXPECT_TRUE(std::equal(a.prim_ids().begin(), a.prim_ids().end(), b.prim_ids().begin(), b.prim_ids().end()));
+  ASSERT_EQ(a.nodes().size(), b.nodes().size());
+  for (size_t i = 0; i < a.nodes().size(); ++i) {
+    const BvhNode &x = a.nodes()[i], &y = b.nodes()[i];
+    ASSERT_TRUE(x.min == y.min && x.max == y.max && x.left_first == y.left_first && x.count == y.count) << "node " << i;
+  }
+  EXPECT_EQ(info.sah_cost, b.build_info().sah_cost);
+  const auto same_bytes = [](auto x, auto y) {
+    return x.size() == y.size() && (x.empty() || std::memcmp(x.data(), y.data(), x.size_bytes()) == 0);
+  };
+  EXPECT_TRUE(same_bytes(a.triangle_blocks(), b.triangle_blocks()));
+  // Fast builds report no optimisation.
+  const BuildInfo fast = Bvh::build(soup.input()).build_info();
+  EXPECT_EQ(fast.reinsertions, 0u);
+  EXPECT_EQ(fast.optimize_ms, 0.0);
+  EXPECT_EQ(fast.sah_cost_binned, 0.0);
+}
+
+/// A binary tree in the builder's layout over unit boxes [i, i + 1] x [0, 1] x [0, 1] along x,
+/// one leaf each: leaves[k] is the box index of the k-th leaf in depth-first order, paired as
+/// ((l0 l1)(l2 l3))((l4 l5)(l6 l7)).
+std::vector<BvhNode> eight_leaf_tree(const uint32_t (&leaves)[8], std::vector<uint32_t>& prim_ids) {
+  std::vector<BvhNode> n(16);
+  const auto leaf = [&](uint32_t node, uint32_t k) {
+    const float x = static_cast<float>(leaves[k]);
+    n[node].min = {x, 0, 0};
+    n[node].max = {x + 1, 1, 1};
+    n[node].left_first = k;
+    n[node].count = 1;
+  };
+  // Root 0 -> (2, 3); 2 -> (4, 5); 3 -> (6, 7); 4..7 -> leaf pairs at 8..15.
+  const uint32_t kids[8][2] = {{2, 3}, {0, 0}, {4, 5}, {6, 7}, {8, 9}, {10, 11}, {12, 13}, {14, 15}};
+  for (uint32_t k = 0; k < 8; ++k) leaf(8 + k, k);
+  for (uint32_t j = 7; j != ~0u; --j) {
+    if (j == 1) continue;
+    const BvhNode &l = n[kids[j][0]], &r = n[kids[j][1]];
+    n[j].min = min(l.min, r.min);
+    n[j].max = max(l.max, r.max);
+    n[j].left_first = kids[j][0];
+    n[j].count = 0;
+  }
+  prim_ids.resize(8);
+  for (uint32_t k = 0; k < 8; ++k) prim_ids[k] = leaves[k];
+  return n;
+}
+
+/// Checks the builder's layout (node 0 the root, even sibling pairs after their parent, boxes
+/// the exact unions of their children, every subtree's triangles contiguous) and returns the
+/// sum of the interior nodes' half areas.
+double check_layout(const std::vector<BvhNode>& n, const std::vector<uint32_t>& ids, uint32_t& depth_out) {
+  double cost = 0.0;
+  uint32_t next_prim = 0;
+  depth_out = 0;
+  // (node, depth); depth-first, left first: leaves must come in prim order.
+  std::vector<std::pair<uint32_t, uint32_t>> stack{{0u, 0u}};
+  while (!stack.empty()) {
+    const auto [j, d] = stack.back();
+    stack.pop_back();
+    depth_out = std::max(depth_out, d);
+    const BvhNode& nd = n[j];
+    if (nd.is_leaf()) {
+      EXPECT_EQ(nd.left_first, next_prim) << "leaf " << j << " out of depth-first order";
+      next_prim += nd.count;
+      continue;
+    }
+    EXPECT_GT(nd.left_first, j);
+    EXPECT_EQ(nd.left_first % 2, 0u);
+    const BvhNode &l = n[nd.left_first], &r = n[nd.left_first + 1];
+    EXPECT_TRUE(nd.min == min(l.min, r.min) && nd.max == max(l.max, r.max)) << "node " << j << " is not its children's union";
+    const Vec3 e = nd.max - nd.min;
+    cost += double{e.x} * e.y + double{e.y} * e.z + double{e.z} * e.x;
+    stack.push_back({nd.left_first + 1, d + 1});
+    stack.push_back({nd.left_first, d + 1});
+  }
+  EXPECT_EQ(next_prim, ids.size());
+  std::vector<uint32_t> sorted = ids;
+  std::sort(sorted.begin(), sorted.end());
+  for (uint32_t i = 0; i < sorted.size(); ++i) EXPECT_EQ(sorted[i], i) << "prim ids are not a permutation";
+  return cost;
+}
+
+TEST(BvhQuality, ReinsertionRepairsABadlyPairedTree) {
+  // Boxes paired far apart: (0 7)(1 6) | (2 5)(3 4). Interior half areas (2 L + 1 for length L):
+  // pairs 17 + 13 + 9 + 5, their parents 17 + 9, the root 17: 87. The best tree pairs
+  // neighbours, ((0 1)(2 3))((4 5)(6 7)): 4 x 5 + 2 x 9 + 17 = 55.
+  std::vector<uint32_t> ids;
+  std::vector<BvhNode> n = eight_leaf_tree({0, 7, 1, 6, 2, 5, 3, 4}, ids);
+  uint32_t depth = 0;
+  ASSERT_DOUBLE_EQ(check_layout(n, ids, depth), 87.0);
+  const accel::ReinsertionStats st = accel::optimize_by_reinsertion(n, ids, 96);
+  EXPECT_DOUBLE_EQ(st.cost_before, 87.0);
+  EXPECT_GT(st.moves, 0u);
+  const double after = check_layout(n, ids, depth);
+  EXPECT_DOUBLE_EQ(after, st.cost_after);
+  EXPECT_DOUBLE_EQ(after, 55.0) << "reinsertion did not find the neighbour pairing";
+  EXPECT_LE(depth, 4u);
+  // Each box keeps its own leaf: the leaf at prim slot k still holds box ids[k].
+  for (const BvhNode& nd : n)
+    if (nd.is_leaf()) {
+      EXPECT_EQ(nd.min.x, static_cast<float>(ids[nd.left_first]));
+    }
+
+  // Already the best tree: nothing gets worse (the old place is always a candidate).
+  std::vector<BvhNode> good = eight_leaf_tree({0, 1, 2, 3, 4, 5, 6, 7}, ids);
+  const accel::ReinsertionStats keep = accel::optimize_by_reinsertion(good, ids, 96);
+  EXPECT_DOUBLE_EQ(keep.cost_after, 55.0);
+  EXPECT_DOUBLE_EQ(check_layout(good, ids, depth), 55.0);
+
+  // The depth bound holds: with max depth 3 (what the tree has), no move may make it deeper.
+  n = eight_leaf_tree({0, 7, 1, 6, 2, 5, 3, 4}, ids);
+  accel::optimize_by_reinsertion(n, ids, 3);
+  check_layout(n, ids, depth);
+  EXPECT_LE(depth, 3u);
+}
+
+TEST(BvhQuality, HighQualityOnBunnyLowersCostAndMatchesBruteForce) {
+  SPECULA_REQUIRE_MESH(path, "stanford-bunny.obj");
+  const Scene scene = load_obj(path);
+  const TriangleInput input{scene.positions, scene.indices, {}};
+  BvhOptions o;
+  o.quality = BvhQuality::High;
+  const Bvh bvh = Bvh::build(input, o);
+  check_invariants(bvh, input, o);
+  EXPECT_LT(bvh.build_info().sah_cost, bvh.build_info().sah_cost_binned);
+  // The binary tree of single triangles costs less than the fast build's (36.50, leaves of up
+  // to 16 triangles), as a binary SAH tree.
+  EXPECT_LT(bvh.build_info().sah_cost, Bvh::build(input).build_info().sah_cost);
+  expect_matches_brute(input, test::make_oracle_rays(scene.bounds(), scene.positions, 20000, 777), "bunny high", o);
 }
 
 }  // namespace

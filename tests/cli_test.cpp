@@ -13,6 +13,7 @@
 #include <cstdlib>
 #include <filesystem>
 #include <fstream>
+#include <iterator>
 #include <sstream>
 #include <string>
 #include <thread>
@@ -119,6 +120,23 @@ TEST_F(Cli, RenderWritesImageAndPrintsTimings) {
   const RunResult k = run_cli("render cornell --width 8 --height 6 --bvh-kernel sse4 -o '" + (dir_ / "k.png").string() + "'", dir_);
   ASSERT_EQ(k.exit_code, 0) << k.err;
   EXPECT_NE(k.out.find("(bvh sse4: "), std::string::npos) << k.out;
+  // --bvh-quality high builds the optimised tree and says what the optimisation did; the image
+  // is the same bytes as the fast tree's (the same hits).
+  const RunResult h = run_cli("render cornell --width 8 --height 6 --bvh-kernel sse4 --bvh-quality high -o '" +
+                                  (dir_ / "h.png").string() + "'",
+                              dir_);
+  ASSERT_EQ(h.exit_code, 0) << h.err;
+  EXPECT_NE(h.out.find("--bvh-quality high: SAH cost "), std::string::npos) << h.out;
+  EXPECT_EQ(k.out.find("--bvh-quality high"), std::string::npos) << k.out;
+  {
+    std::ifstream a(dir_ / "k.png", std::ios::binary), b(dir_ / "h.png", std::ios::binary);
+    const std::string ka((std::istreambuf_iterator<char>(a)), {}), hb((std::istreambuf_iterator<char>(b)), {});
+    EXPECT_FALSE(ka.empty());
+    EXPECT_EQ(ka, hb) << "--bvh-quality high changed the image";
+  }
+  const RunResult bad = run_cli("render cornell --bvh-quality best", dir_);
+  EXPECT_NE(bad.exit_code, 0);
+  EXPECT_NE(bad.err.find("--bvh-quality"), std::string::npos) << bad.err;
   EXPECT_TRUE(fs::exists(png));
   EXPECT_TRUE(fs::exists(dir_ / "cornell.depth.png"));
   EXPECT_TRUE(fs::exists(dir_ / "cornell.cost.png"));
@@ -224,6 +242,14 @@ TEST_F(Cli, BenchTraceJsonHasEveryRayKindAndTheKernel) {
   for (const char* k : {"primary", "shadow", "reflection", "refraction", "diffuse", "random"})
     EXPECT_NE(t.out.find(std::string("\n") + k + " "), std::string::npos) << k << "\n" << t.out;
   EXPECT_NE(run_cli("bench trace --scene cornell --bvh-kernel avx9", dir_).exit_code, 0);
+  // --bvh-quality high: the JSON names the quality and the optimisation's figures.
+  const RunResult hq = run_cli("bench trace --scene cornell --width 24 --height 16 --repeat 1 --no-embree --bvh-quality high --json", dir_);
+  ASSERT_EQ(hq.exit_code, 0) << hq.err;
+  const nlohmann::json hj = nlohmann::json::parse(hq.out);
+  EXPECT_EQ(hj["bvh"]["quality"], "high");
+  EXPECT_GE(hj["bvh"]["sah_cost_binned"].get<double>(), hj["bvh"]["sah_cost"].get<double>());
+  EXPECT_GT(hj["bvh"]["optimize_ms"].get<double>(), 0.0);
+  EXPECT_EQ(j["bvh"]["quality"], "fast");
   // A scene in zones also times one BVH per zone (seed 002's build), in JSON and in the table.
   const RunResult z = run_cli("bench trace --scene city:10000 --width 8 --height 6 --repeat 1 --no-embree --json", dir_);
   ASSERT_EQ(z.exit_code, 0) << z.err;

@@ -264,9 +264,12 @@ int bench_trace(const BenchTraceOptions& options) {
   const char* kernel = bvh_kernel_name(resolve_bvh_kernel(options.bvh.kernel));
   if (!json)
     std::printf("specula BVH: %zu nodes, %zu leaves, depth %u, SAH cost %.2f, %.2f MB (%zu bytes), %d bins, max leaf "
-                "%d, kernel %s\n",
+                "%d, kernel %s, quality %s\n",
                 info.nodes, info.leaves, info.max_depth, info.sah_cost, static_cast<double>(info.bytes) / 1048576.0,
-                info.bytes, options.bvh.bins, options.bvh.max_leaf_size, kernel);
+                info.bytes, options.bvh.bins, options.bvh.max_leaf_size, kernel, bvh_quality_name(options.bvh.quality));
+  if (!json && info.optimize_ms > 0.0)
+    std::printf("             quality high: SAH cost %.2f before reinsertion, %llu subtrees moved in %.2f ms\n",
+                info.sah_cost_binned, static_cast<unsigned long long>(info.reinsertions), info.optimize_ms);
 
   // A scene in named zones (e.g. city) also gets one BVH per zone, as seed 002 builds them:
   // the total build time of all zones on one thread (median of the passes).
@@ -399,7 +402,13 @@ int bench_trace(const BenchTraceOptions& options) {
     j["repeat"] = repeat;
     j["bvh"] = {{"kernel", kernel},          {"nodes", info.nodes},   {"leaves", info.leaves},
                 {"depth", info.max_depth},   {"sah_cost", info.sah_cost}, {"bytes", info.bytes},
-                {"bins", options.bvh.bins}, {"max_leaf", options.bvh.max_leaf_size}};
+                {"bins", options.bvh.bins}, {"max_leaf", options.bvh.max_leaf_size},
+                {"quality", bvh_quality_name(options.bvh.quality)}};
+    if (info.optimize_ms > 0.0) {
+      j["bvh"]["sah_cost_binned"] = info.sah_cost_binned;
+      j["bvh"]["reinsertions"] = info.reinsertions;
+      j["bvh"]["optimize_ms"] = info.optimize_ms;
+    }
     if (zones.count > 0)
       j["zones"] = {{"count", zones.count},
                     {"triangles", zones.triangles},

@@ -51,12 +51,25 @@ inline bool bvh_kernel_is_8_wide(BvhKernel kernel) {
 /// \p kernel with Auto replaced by the best kernel this CPU runs.
 BvhKernel resolve_bvh_kernel(BvhKernel kernel);
 
+/// How hard the build works on the tree. Fast: the binned-SAH tree as built (the default; what
+/// dynamic scenes and benchmarks against other builders use). High: the same tree, then
+/// improved by subtree reinsertion (Bittner et al. 2013) until a round gains less than 0.1% of
+/// its cost: a lower SAH cost and faster rays for static scenes, for a slower (serial) build.
+/// Hits are identical either way (every kernel returns the closest hit, as brute force does).
+enum class BvhQuality { Fast, High };
+
+/// Parses "fast" / "high"; throws specula::Error listing the valid names otherwise.
+BvhQuality parse_bvh_quality(const std::string& name);
+/// "fast" or "high".
+const char* bvh_quality_name(BvhQuality quality);
+
 struct BvhOptions {
   int bins = 32;              ///< most SAH bins per axis (2..256); a node of n triangles uses 4 + n / 20
   int max_leaf_size = 16;     ///< hard cap; below it leaves are made by SAH termination
   float traversal_cost = 1.0f;  ///< SAH cost of visiting a node, relative to one triangle test
   int threads = 0;            ///< 0 = all hardware threads
   BvhKernel kernel = BvhKernel::Auto;  ///< traversal layout; an unsupported one throws at build
+  BvhQuality quality = BvhQuality::Fast;  ///< High: reinsertion optimisation after the build
   /// Trace coherent rays as packets: each group of 16 consecutive rays of a batch (from the
   /// start of the span) whose rays share direction signs and dominant axis goes through the
   /// tree together (frustum culling, early-in), the others one by one. Results are
@@ -72,6 +85,11 @@ struct BuildInfo {
   size_t leaves = 0;
   uint32_t max_depth = 0;
   double sah_cost = 0.0;  ///< SAH cost of the tree (root area normalised)
+  /// BvhQuality::High: the binned-SAH tree's cost before the optimisation, the optimisation's
+  /// share of build_ms, and the subtrees it moved (0 for Fast builds).
+  double sah_cost_binned = 0.0;
+  double optimize_ms = 0.0;
+  uint64_t reinsertions = 0;
   size_t bytes = 0;
 };
 

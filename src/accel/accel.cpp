@@ -39,6 +39,14 @@ const char* bvh_kernel_name(BvhKernel kernel) {
   return "?";
 }
 
+BvhQuality parse_bvh_quality(const std::string& name) {
+  if (name == "fast") return BvhQuality::Fast;
+  if (name == "high") return BvhQuality::High;
+  throw Error("unknown BVH quality '" + name + "' (valid: fast, high)");
+}
+
+const char* bvh_quality_name(BvhQuality quality) { return quality == BvhQuality::High ? "high" : "fast"; }
+
 bool bvh_kernel_supported(BvhKernel kernel) {
   switch (kernel) {
     case BvhKernel::Auto:

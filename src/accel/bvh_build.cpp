@@ -41,6 +41,7 @@
 #include <tbb/task_arena.h>
 #include <tbb/task_group.h>
 
+#include "accel/bvh_optimize.h"
 #include "accel/triangles.h"
 #include "accel/watertight.h"
 #include "specula/bvh.h"
@@ -748,6 +749,26 @@ struct RootBounds {
   }
 };
 
+/// BuildInfo::sah_cost of a binary tree in the builder's layout, as step 5 of the build
+/// computes it (interior half areas times the traversal cost, leaves' times their triangles,
+/// over the root's).
+double binary_sah_cost(std::span<const BvhNode> nodes, float traversal_cost) {
+  const double tc = std::isfinite(traversal_cost) && traversal_cost >= 0.0f ? traversal_cost : 1.0;
+  const auto area = [](const BvhNode& nd) {
+    const Vec3 e = nd.max - nd.min;
+    return (e.x >= 0 && e.y >= 0 && e.z >= 0) ? double{e.x} * e.y + double{e.y} * e.z + double{e.z} * e.x : 0.0;
+  };
+  double sum = 0.0, triangles = 0.0;
+  for (size_t j = 0; j < nodes.size(); ++j) {
+    if (j == 1) continue;  // padding
+    const bool leaf = nodes[j].is_leaf();
+    sum += area(nodes[j]) * (leaf ? static_cast<double>(nodes[j].count) : tc);
+    triangles += leaf ? nodes[j].count : 0;
+  }
+  const double root = area(nodes[0]);
+  return root > 0.0 ? sum / root : triangles;  // (a flat root: every triangle tested)
+}
+
 }  // namespace
 
 Bvh Bvh::build(const TriangleInput& input, const BvhOptions& options, BuildInfo* info) {
@@ -872,7 +893,12 @@ Bvh Bvh::build(const TriangleInput& input, const BvhOptions& options, BuildInfo*
     static_assert(alignof(BvhNode) <= 64);
     BvhNode* const node_storage = static_cast<BvhNode*>(scratch->get(1, max_nodes * sizeof(BvhNode)));
     bvh.prim_ids_.resize(valid);
-    BvhBuilder builder(options, refs, node_storage, bvh.prim_ids_.data());
+    // BvhQuality::High builds down to single triangles: reinsertion moves whole subtrees, so
+    // it can only regroup triangles that are leaves of their own, and the collapse below makes
+    // the leaves (any subtree of at most max_leaf_size triangles, by SAH).
+    BvhOptions tree_options = options;
+    if (options.quality == BvhQuality::High) tree_options.max_leaf_size = 1;
+    BvhBuilder builder(tree_options, refs, node_storage, bvh.prim_ids_.data());
     builder.build_root(valid, root.box, root.cbox, parallel && valid > kTaskThreshold);
     const uint32_t used = builder.node_count();
     if (!parallel || valid <= kTaskThreshold) {
@@ -901,6 +927,17 @@ Bvh Bvh::build(const TriangleInput& input, const BvhOptions& options, BuildInfo*
     }
     bvh.nodes_[1] = BvhNode{};
     if (valid == 0) bvh.nodes_[0] = BvhNode{};
+
+    // 2b. BvhQuality::High: subtree reinsertion on the binary tree (bvh_optimize.h). It keeps
+    //     the layout (depth-first numbering, contiguous subtree ranges) that the collapse
+    //     below relies on, and the depth bound the traversal stacks are sized for.
+    if (options.quality == BvhQuality::High && valid > 0) {
+      const Timer opt;
+      bvh.info_.sah_cost_binned = binary_sah_cost(bvh.nodes_, options.traversal_cost);
+      const accel::ReinsertionStats rs = accel::optimize_by_reinsertion(bvh.nodes_, bvh.prim_ids_, kMedianDepth + 32);
+      bvh.info_.reinsertions = rs.moves;
+      bvh.info_.optimize_ms = opt.ms();
+    }
 
     // 3. The transmittance. (The scene index of every triangle in BVH order came from the
     //    builder's leaves. No BvhTriangle array: the leaves' blocks are filled straight from
@@ -1190,21 +1227,12 @@ Bvh Bvh::build(const TriangleInput& input, const BvhOptions& options, BuildInfo*
     fill_blocks();
   }
 
-  // 5. Figures: node/leaf counts, depth and the SAH cost (root-area normalised), in one pass
-  //    over the node array (parents come before their children; the array is the same for any
-  //    thread count, so the sums are too). A depth-first walk with a stack cost 2-3% of the
-  //    bunny build.
+  // 5. Figures: node/leaf counts and depth in one pass over the node array (parents come
+  //    before their children; the array is the same for any thread count, so the sums are
+  //    too; a depth-first walk with a stack cost 2-3% of the bunny build), and the SAH cost.
   BuildInfo& bi = bvh.info_;
   const size_t m = bvh.prim_ids_.size();
   bi.nodes = m == 0 ? 1 : bvh.nodes_.size() - 1;  // minus the padding node
-  const float tc = std::isfinite(options.traversal_cost) && options.traversal_cost >= 0.0f
-                       ? options.traversal_cost
-                       : 1.0f;
-  const auto half_area = [](const BvhNode& nd) {
-    const Vec3 e = nd.max - nd.min;
-    return (e.x >= 0 && e.y >= 0 && e.z >= 0) ? double{e.x} * e.y + double{e.y} * e.z + double{e.z} * e.x : 0.0;
-  };
-  double sah = 0.0;
   size_t leaves = 0;
   uint32_t max_depth = 0;
   {
@@ -1217,17 +1245,14 @@ Bvh Bvh::build(const TriangleInput& input, const BvhOptions& options, BuildInfo*
       max_depth = std::max(max_depth, depth[j]);
       if (nd.is_leaf() || m == 0) {
         ++leaves;
-        sah += half_area(nd) * nd.count;
       } else {
-        sah += half_area(nd) * tc;
         depth[nd.left_first] = depth[nd.left_first + 1] = depth[j] + 1;
       }
     }
   }
   bi.max_depth = max_depth;
-  const double root_area = m > 0 ? half_area(bvh.nodes_[0]) : 0.0;
   bi.leaves = leaves;
-  bi.sah_cost = root_area > 0.0 ? sah / root_area : static_cast<double>(m);
+  bi.sah_cost = m > 0 ? binary_sah_cost(bvh.nodes_, options.traversal_cost) : 0.0;
   bi.bytes = bvh.memory_bytes();
   bi.build_ms = timer.ms();
   if (info) *info = bi;
