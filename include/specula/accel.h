@@ -51,11 +51,14 @@ inline bool bvh_kernel_is_8_wide(BvhKernel kernel) {
 /// \p kernel with Auto replaced by the best kernel this CPU runs.
 BvhKernel resolve_bvh_kernel(BvhKernel kernel);
 
-/// How hard the build works on the tree. Fast: the binned-SAH tree as built (the default; what
-/// dynamic scenes and benchmarks against other builders use). High: the same tree, then
-/// improved by subtree reinsertion (Bittner et al. 2013) until a round gains less than 0.1% of
-/// its cost: a lower SAH cost and faster rays for static scenes, for a slower (serial) build.
-/// Hits are identical either way (every kernel returns the closest hit, as brute force does).
+/// How hard the build works on the tree. Fast: the binned-SAH tree with SAH-terminated leaves
+/// (the default; what dynamic scenes and comparisons with other builders use). High, for static
+/// scenes: the binned-SAH tree built down to single triangles, improved by subtree reinsertion
+/// (Bittner et al. 2013; serial, until a round gains less than 0.1% of the cost), its leaves
+/// then chosen by the collapse into wide nodes (any subtree of at most max_leaf_size
+/// triangles, by SAH): a lower SAH cost and fewer traversal steps per ray for a build several
+/// times slower. Hits are identical either way (every kernel returns the closest hit and
+/// decides ties as brute force does).
 enum class BvhQuality { Fast, High };
 
 /// Parses "fast" / "high"; throws specula::Error listing the valid names otherwise.
