@@ -1052,6 +1052,10 @@ TEST(BvhDegenerate, OverflowingSahCostsStillBuildEveryKernelAndMatchBruteForce) 
     rays.push_back(Ray{centroid - d * reach, 0.0f, d, kInf});
   }
   expect_matches_brute(m.input(), rays, "overflowing SAH costs");
+  // The high-quality build's reinsertion sums the same infinite areas.
+  BvhOptions high;
+  high.quality = BvhQuality::High;
+  expect_matches_brute(m.input(), rays, "overflowing SAH costs, quality high", high);
 }
 
 // ---------------------------------------------------------------------------------------------

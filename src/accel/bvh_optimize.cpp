@@ -155,7 +155,9 @@ class Tree {
       }
       if (leaf(at)) continue;
       const double below = cost - area_[at];  // the induced cost of at's children
-      if (below + ax >= best) continue;
+      // (Areas that overflowed to inf make this NaN: such subtrees are not searched, which
+      // also keeps NaN out of the heap's ordering.)
+      if (!(below + ax < best)) continue;
       heap_.push_back({below, left_[at], e.depth + 1});
       std::push_heap(heap_.begin(), heap_.end(), later);
       heap_.push_back({below, right_[at], e.depth + 1});
@@ -244,10 +246,13 @@ ReinsertionStats optimize_by_reinsertion(std::span<BvhNode> nodes, std::span<uin
     for (uint32_t j = 0; j < n; ++j)
       if (j != 1 && j != tree.root()) order.push_back(j);
     const size_t take = std::min(batch, order.size());
-    // Largest first; equal areas by index (a deterministic order).
-    const auto larger = [&tree](uint32_t a, uint32_t b) {
-      return tree.area(a) != tree.area(b) ? tree.area(a) > tree.area(b) : a < b;
+    // Largest first; equal areas by index (a deterministic order). A NaN area (inf times a
+    // flat extent, near the float range's end) ranks last, so the order stays strict.
+    const auto key = [&tree](uint32_t a) {
+      const float x = tree.area(a);
+      return x == x ? x : -std::numeric_limits<float>::infinity();
     };
+    const auto larger = [&key](uint32_t a, uint32_t b) { return key(a) != key(b) ? key(a) > key(b) : a < b; };
     std::partial_sort(order.begin(), order.begin() + static_cast<std::ptrdiff_t>(take), order.end(), larger);
     for (size_t i = 0; i < take; ++i) {
       const uint32_t x = order[i];
