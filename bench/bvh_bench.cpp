@@ -41,10 +41,12 @@ bool require_bunny(benchmark::State& state) {
 
 TriangleInput bunny_input() { return {bunny()->positions, bunny()->indices, {}}; }
 
+/// Arg 0: threads (0 = all); arg 1: BvhQuality (0 = fast, 1 = high).
 void BM_BvhBuild(benchmark::State& state) {
   if (!require_bunny(state)) return;
   BvhOptions o;
   o.threads = static_cast<int>(state.range(0));
+  o.quality = state.range(1) != 0 ? BvhQuality::High : BvhQuality::Fast;
   BuildInfo info;
   for (auto _ : state) {
     Bvh bvh = Bvh::build(bunny_input(), o, &info);
@@ -55,7 +57,13 @@ void BM_BvhBuild(benchmark::State& state) {
   state.counters["MB"] = static_cast<double>(info.bytes) / 1048576.0;
   state.counters["tris/s"] = benchmark::Counter(static_cast<double>(bunny()->triangle_count()), benchmark::Counter::kIsIterationInvariantRate);
 }
-BENCHMARK(BM_BvhBuild)->Arg(1)->Arg(0)->ArgName("threads")->Unit(benchmark::kMillisecond);
+BENCHMARK(BM_BvhBuild)
+    ->Args({1, 0})
+    ->Args({0, 0})
+    ->Args({1, 1})
+    ->Args({0, 1})
+    ->ArgNames({"threads", "high"})
+    ->Unit(benchmark::kMillisecond);
 
 /// Primary rays (640 x 480 from the scene camera) and cosine-distributed bounces from their hits.
 struct RaySets {
