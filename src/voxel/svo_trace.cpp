@@ -204,6 +204,9 @@ struct alignas(64) PacketRays {
 #define SVO_MIN _mm256_min_ps
 #define SVO_MAX _mm256_max_ps
 #define SVO_LT(a, b) static_cast<uint32_t>(_mm256_movemask_ps(_mm256_cmp_ps((a), (b), _CMP_LT_OQ)))
+#define SVO_GE(a, b) static_cast<uint32_t>(_mm256_movemask_ps(_mm256_cmp_ps((a), (b), _CMP_GE_OQ)))
+#define SVO_SEL_GE(a, b, x, y) _mm256_blendv_ps((y), (x), _mm256_cmp_ps((a), (b), _CMP_GE_OQ))
+#define SVO_STORE _mm256_store_ps
 #include "voxel/svo_packet.inc"
 #undef SVO_NS
 #undef SVO_TARGET
@@ -216,6 +219,9 @@ struct alignas(64) PacketRays {
 #undef SVO_MIN
 #undef SVO_MAX
 #undef SVO_LT
+#undef SVO_GE
+#undef SVO_SEL_GE
+#undef SVO_STORE
 
 #define SVO_NS svo_avx512
 #define SVO_TARGET __attribute__((target("avx2,avx512f,popcnt,bmi")))
@@ -230,6 +236,9 @@ struct alignas(64) PacketRays {
 #define SVO_MIN(a, b) _mm512_maskz_min_ps(0xFFFF, (a), (b))
 #define SVO_MAX(a, b) _mm512_maskz_max_ps(0xFFFF, (a), (b))
 #define SVO_LT(a, b) static_cast<uint32_t>(_mm512_cmp_ps_mask((a), (b), _CMP_LT_OQ))
+#define SVO_GE(a, b) static_cast<uint32_t>(_mm512_cmp_ps_mask((a), (b), _CMP_GE_OQ))
+#define SVO_SEL_GE(a, b, x, y) _mm512_mask_blend_ps(_mm512_cmp_ps_mask((a), (b), _CMP_GE_OQ), (y), (x))
+#define SVO_STORE _mm512_store_ps
 #include "voxel/svo_packet.inc"
 #undef SVO_NS
 #undef SVO_TARGET
@@ -242,6 +251,9 @@ struct alignas(64) PacketRays {
 #undef SVO_MIN
 #undef SVO_MAX
 #undef SVO_LT
+#undef SVO_GE
+#undef SVO_SEL_GE
+#undef SVO_STORE
 
 namespace specula {
 
@@ -272,9 +284,9 @@ class SvoTraversal {
                    static_cast<uint32_t>(s.leaf_attrs_.size()), depth, leaf_level, depth - leaf_level, s.mode_};
   }
 
-  /// One ray: calls leaf(lr, cell, attrs, prim) for the leaves (voxels, or nodes at the lod
-  /// level) it crosses, in ray order, with the ray in the leaf level's frame; stops when leaf
-  /// returns true.
+  /// One ray: calls leaf(lr, cell, attrs, prim, nullptr) for the leaves (voxels, or nodes at
+  /// the lod level) it crosses, in ray order, with the ray in the leaf level's frame; stops when
+  /// leaf returns true.
   template <bool kStats, class Leaf>
   static void walk(const SparseVoxelOctree& s, const Ray& ray, TraceStats& stats, Leaf&& leaf) {
     if constexpr (kStats) ++stats.rays;
@@ -283,21 +295,24 @@ class SvoTraversal {
     if (s.grid_.depth == 0) {
       const uint32_t cell[3] = {0, 0, 0};
       if constexpr (kStats) ++stats.triangles_tested;
-      leaf(r, cell, s.leaf_attrs_[0], 0u);
+      leaf(r, cell, s.leaf_attrs_[0], 0u, nullptr);
       return;
     }
     const SvoView v = view(s);
     const LocalRay rl = v.shift > 0 ? voxel::coarsen(r, v.shift) : r;
     const int32_t root[3] = {0, 0, 0};
     walk_node<kStats>(v, r, 0, root, 0, stats,
-                      [&](const uint32_t* cell, uint32_t child) { return leaf(rl, cell, v.attrs(child), v.prim(child)); });
+                      [&](const uint32_t* cell, uint32_t child) {
+                        return leaf(rl, cell, v.attrs(child), v.prim(child), nullptr);
+                      });
   }
 
   /// A batch: rays are mapped to the local frame, grouped by direction octant (keeping their
   /// order, so neighbours in the batch stay neighbours) and traced in packets of the CPU's
   /// vector width; a lone ray (or a CPU without AVX2) uses the single-ray traversal.
-  /// lane_leaf(i, lr, cell, attrs, prim) is called for ray i (index into the batch) and
-  /// returns true when the ray is done; done(i) is called for rays that miss by definition.
+  /// lane_leaf(i, lr, cell, attrs, prim, span) is called for ray i (index into the batch) and
+  /// returns true when the ray is done; span is null or the ray's voxel::CellSpan of the cell
+  /// (as cell_span gives it; the packets compute it without the level of detail).
   template <bool kStats, class LaneLeaf>
   static void batch(const SparseVoxelOctree& s, std::span<const Ray> rays, TraceStats& stats, LaneLeaf&& lane_leaf) {
     if constexpr (kStats) stats.rays += rays.size();
@@ -342,12 +357,12 @@ class SvoTraversal {
       if (s.grid_.depth == 0) {
         const uint32_t cell[3] = {0, 0, 0};
         if constexpr (kStats) ++stats.triangles_tested;
-        lane_leaf(i, r, cell, s.leaf_attrs_[0], 0u);
+        lane_leaf(i, r, cell, s.leaf_attrs_[0], 0u, nullptr);
         return;
       }
       const LocalRay rl = v.shift > 0 ? voxel::coarsen(r, v.shift) : r;
       walk_node<kStats>(v, r, 0, root, 0, stats, [&](const uint32_t* cell, uint32_t child) {
-        return lane_leaf(i, rl, cell, v.attrs(child), v.prim(child));
+        return lane_leaf(i, rl, cell, v.attrs(child), v.prim(child), nullptr);
       });
     };
     if (width <= 1) {
@@ -389,20 +404,32 @@ class SvoTraversal {
         }
       }
       const uint32_t lanes = n >= 32 ? ~0u : (1u << n) - 1u;
-      const auto leaf = [&](int j, const uint32_t* cell, uint32_t child) {
-        return lane_leaf(idx[j], *rl[j], cell, v.attrs(child), v.prim(child));
+      const auto leaf = [&](int j, const uint32_t* cell, uint32_t child, const voxel::CellSpan* span) {
+        return lane_leaf(idx[j], *rl[j], cell, v.attrs(child), v.prim(child), span);
       };
       const auto scalar = [&](int j, int level, const int32_t* c, uint32_t node) {
         return walk_node<kStats>(v, local[idx[j]], level, c, node, stats, [&](const uint32_t* cell, uint32_t child) {
-          return leaf(j, cell, child);
+          return leaf(j, cell, child, nullptr);
         });
       };
-      if (fixed) {
-        if (width == 16) svo_avx512::packet_walk<kStats, true>(v, p, mirror, lanes, stats, leaf, scalar);
-        else svo_avx2::packet_walk<kStats, true>(v, p, mirror, lanes, stats, leaf, scalar);
+      // Spans from the packet's planes when the leaves are voxels (see packet_walk).
+      const bool spans = v.shift == 0;
+      if (width == 16) {
+        if (fixed) {
+          if (spans) svo_avx512::packet_walk<kStats, true, true>(v, p, mirror, lanes, stats, leaf, scalar);
+          else svo_avx512::packet_walk<kStats, true, false>(v, p, mirror, lanes, stats, leaf, scalar);
+        } else {
+          if (spans) svo_avx512::packet_walk<kStats, false, true>(v, p, mirror, lanes, stats, leaf, scalar);
+          else svo_avx512::packet_walk<kStats, false, false>(v, p, mirror, lanes, stats, leaf, scalar);
+        }
       } else {
-        if (width == 16) svo_avx512::packet_walk<kStats, false>(v, p, mirror, lanes, stats, leaf, scalar);
-        else svo_avx2::packet_walk<kStats, false>(v, p, mirror, lanes, stats, leaf, scalar);
+        if (fixed) {
+          if (spans) svo_avx2::packet_walk<kStats, true, true>(v, p, mirror, lanes, stats, leaf, scalar);
+          else svo_avx2::packet_walk<kStats, true, false>(v, p, mirror, lanes, stats, leaf, scalar);
+        } else {
+          if (spans) svo_avx2::packet_walk<kStats, false, true>(v, p, mirror, lanes, stats, leaf, scalar);
+          else svo_avx2::packet_walk<kStats, false, false>(v, p, mirror, lanes, stats, leaf, scalar);
+        }
       }
     }
   }
@@ -413,10 +440,10 @@ class SvoTraversal {
     for (size_t i = 0; i < rays.size(); ++i) hits[i] = Hit{};
     const VoxelHitMode mode = s.mode_;
     batch<kStats>(s, rays, stats, [&](uint32_t i, const LocalRay& r, const uint32_t* cell, const VoxelAttributes& attrs,
-                                      uint32_t prim) {
+                                      uint32_t prim, const voxel::CellSpan* span) {
       CellHit h;
       if ((!skip.empty() && attrs.material == skip[i]) || (!skip_prim.empty() && prim == skip_prim[i]) ||
-          !voxel::hit_cell(r, cell, attrs, mode, h))
+          !(span ? voxel::hit_span(r, cell, attrs, mode, *span, h) : voxel::hit_cell(r, cell, attrs, mode, h)))
         return false;
       Hit& hit = hits[i];
       hit.t = h.t;
@@ -431,11 +458,13 @@ class SvoTraversal {
     for (size_t i = 0; i < rays.size(); ++i) out[i] = Vec3{1.0f, 1.0f, 1.0f};
     const VoxelHitMode mode = s.mode_;
     batch<kStats>(s, rays, stats, [&](uint32_t i, const LocalRay& r, const uint32_t* cell, const VoxelAttributes& attrs,
-                                      uint32_t) {
+                                      uint32_t, const voxel::CellSpan* span) {
       // Both traversals only report leaves the ray crosses with positive length (the kernel's
       // own test), so in cube mode every reported voxel is hit.
       CellHit h;
-      if (mode != VoxelHitMode::Cubes && !voxel::hit_cell(r, cell, attrs, mode, h)) return false;
+      if (mode != VoxelHitMode::Cubes &&
+          !(span ? voxel::hit_span(r, cell, attrs, mode, *span, h) : voxel::hit_cell(r, cell, attrs, mode, h)))
+        return false;
       if (!(attrs.transparency > 0.0f)) {
         out[i] = Vec3{};
         return true;
