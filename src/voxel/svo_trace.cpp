@@ -186,8 +186,10 @@ bool walk_node(const SvoView& v, const LocalRay& r, int level, const int32_t c[3
 struct alignas(64) PacketRays {
   float o[3][16];
   float inv[3][16];
+  float d[3][16];  ///< direction, 0 on fixed axes (as LocalRay::d; for the contour test)
   float tmin[16];
   float tmax[16];
+  float scale;     ///< LocalRay::scale, the same for every ray of a batch
 };
 
 }  // namespace specula
@@ -207,6 +209,10 @@ struct alignas(64) PacketRays {
 #define SVO_GE(a, b) static_cast<uint32_t>(_mm256_movemask_ps(_mm256_cmp_ps((a), (b), _CMP_GE_OQ)))
 #define SVO_SEL_GE(a, b, x, y) _mm256_blendv_ps((y), (x), _mm256_cmp_ps((a), (b), _CMP_GE_OQ))
 #define SVO_STORE _mm256_store_ps
+#define SVO_ADD _mm256_add_ps
+#define SVO_DIV _mm256_div_ps
+#define SVO_LE(a, b) static_cast<uint32_t>(_mm256_movemask_ps(_mm256_cmp_ps((a), (b), _CMP_LE_OQ)))
+#define SVO_EQ(a, b) static_cast<uint32_t>(_mm256_movemask_ps(_mm256_cmp_ps((a), (b), _CMP_EQ_OQ)))
 #include "voxel/svo_packet.inc"
 #undef SVO_NS
 #undef SVO_TARGET
@@ -222,6 +228,10 @@ struct alignas(64) PacketRays {
 #undef SVO_GE
 #undef SVO_SEL_GE
 #undef SVO_STORE
+#undef SVO_ADD
+#undef SVO_DIV
+#undef SVO_LE
+#undef SVO_EQ
 
 #define SVO_NS svo_avx512
 #define SVO_TARGET __attribute__((target("avx2,avx512f,popcnt,bmi")))
@@ -239,6 +249,10 @@ struct alignas(64) PacketRays {
 #define SVO_GE(a, b) static_cast<uint32_t>(_mm512_cmp_ps_mask((a), (b), _CMP_GE_OQ))
 #define SVO_SEL_GE(a, b, x, y) _mm512_mask_blend_ps(_mm512_cmp_ps_mask((a), (b), _CMP_GE_OQ), (y), (x))
 #define SVO_STORE _mm512_store_ps
+#define SVO_ADD _mm512_add_ps
+#define SVO_DIV _mm512_div_ps
+#define SVO_LE(a, b) static_cast<uint32_t>(_mm512_cmp_ps_mask((a), (b), _CMP_LE_OQ))
+#define SVO_EQ(a, b) static_cast<uint32_t>(_mm512_cmp_ps_mask((a), (b), _CMP_EQ_OQ))
 #include "voxel/svo_packet.inc"
 #undef SVO_NS
 #undef SVO_TARGET
@@ -254,6 +268,10 @@ struct alignas(64) PacketRays {
 #undef SVO_GE
 #undef SVO_SEL_GE
 #undef SVO_STORE
+#undef SVO_ADD
+#undef SVO_DIV
+#undef SVO_LE
+#undef SVO_EQ
 
 namespace specula {
 
@@ -311,8 +329,8 @@ class SvoTraversal {
   /// order, so neighbours in the batch stay neighbours) and traced in packets of the CPU's
   /// vector width; a lone ray (or a CPU without AVX2) uses the single-ray traversal.
   /// lane_leaf(i, lr, cell, attrs, prim, span) is called for ray i (index into the batch) and
-  /// returns true when the ray is done; span is null or the ray's voxel::CellSpan of the cell
-  /// (as cell_span gives it; the packets compute it without the level of detail).
+  /// returns true when the ray is done; span is null or what the packet computed of the ray's
+  /// crossing of the cell (voxel::CellCrossing; without the level of detail).
   template <bool kStats, class LaneLeaf>
   static void batch(const SparseVoxelOctree& s, std::span<const Ray> rays, TraceStats& stats, LaneLeaf&& lane_leaf) {
     if constexpr (kStats) stats.rays += rays.size();
@@ -370,6 +388,8 @@ class SvoTraversal {
       return;
     }
     PacketRays p;
+    p.scale = frame.scale;
+    const int spans = v.shift != 0 ? 0 : v.mode == VoxelHitMode::Contours ? 2 : 1;
     LocalRay coarse[16];      // the lanes' rays in the lod level's frame (shift > 0 only)
     const LocalRay* rl[16];   // each lane's ray for the leaf tests
     uint32_t idx[16];
@@ -403,8 +423,11 @@ class SvoTraversal {
           }
         }
       }
+      if (spans == 2)  // the contour test's directions
+        for (int j = 0; j < width; ++j)
+          for (int a = 0; a < 3; ++a) p.d[a][j] = local[idx[j]].d[a];
       const uint32_t lanes = n >= 32 ? ~0u : (1u << n) - 1u;
-      const auto leaf = [&](int j, const uint32_t* cell, uint32_t child, const voxel::CellSpan* span) {
+      const auto leaf = [&](int j, const uint32_t* cell, uint32_t child, const voxel::CellCrossing* span) {
         return lane_leaf(idx[j], *rl[j], cell, v.attrs(child), v.prim(child), span);
       };
       const auto scalar = [&](int j, int level, const int32_t* c, uint32_t node) {
@@ -412,24 +435,20 @@ class SvoTraversal {
           return leaf(j, cell, child, nullptr);
         });
       };
-      // Spans from the packet's planes when the leaves are voxels (see packet_walk).
-      const bool spans = v.shift == 0;
-      if (width == 16) {
-        if (fixed) {
-          if (spans) svo_avx512::packet_walk<kStats, true, true>(v, p, mirror, lanes, stats, leaf, scalar);
-          else svo_avx512::packet_walk<kStats, true, false>(v, p, mirror, lanes, stats, leaf, scalar);
-        } else {
-          if (spans) svo_avx512::packet_walk<kStats, false, true>(v, p, mirror, lanes, stats, leaf, scalar);
-          else svo_avx512::packet_walk<kStats, false, false>(v, p, mirror, lanes, stats, leaf, scalar);
-        }
+      // Spans from the packet's planes when the leaves are voxels, and in contour mode the slab
+      // test too (see packet_walk): kSpan 0 none, 1 spans, 2 spans and contours.
+      const auto run = [&]<bool kFixed, int kSpan>() {
+        if (width == 16) svo_avx512::packet_walk<kStats, kFixed, kSpan>(v, p, mirror, lanes, stats, leaf, scalar);
+        else svo_avx2::packet_walk<kStats, kFixed, kSpan>(v, p, mirror, lanes, stats, leaf, scalar);
+      };
+      if (fixed) {
+        if (spans == 0) run.template operator()<true, 0>();
+        else if (spans == 1) run.template operator()<true, 1>();
+        else run.template operator()<true, 2>();
       } else {
-        if (fixed) {
-          if (spans) svo_avx2::packet_walk<kStats, true, true>(v, p, mirror, lanes, stats, leaf, scalar);
-          else svo_avx2::packet_walk<kStats, true, false>(v, p, mirror, lanes, stats, leaf, scalar);
-        } else {
-          if (spans) svo_avx2::packet_walk<kStats, false, true>(v, p, mirror, lanes, stats, leaf, scalar);
-          else svo_avx2::packet_walk<kStats, false, false>(v, p, mirror, lanes, stats, leaf, scalar);
-        }
+        if (spans == 0) run.template operator()<false, 0>();
+        else if (spans == 1) run.template operator()<false, 1>();
+        else run.template operator()<false, 2>();
       }
     }
   }
@@ -440,10 +459,10 @@ class SvoTraversal {
     for (size_t i = 0; i < rays.size(); ++i) hits[i] = Hit{};
     const VoxelHitMode mode = s.mode_;
     batch<kStats>(s, rays, stats, [&](uint32_t i, const LocalRay& r, const uint32_t* cell, const VoxelAttributes& attrs,
-                                      uint32_t prim, const voxel::CellSpan* span) {
+                                      uint32_t prim, const voxel::CellCrossing* span) {
       CellHit h;
       if ((!skip.empty() && attrs.material == skip[i]) || (!skip_prim.empty() && prim == skip_prim[i]) ||
-          !(span ? voxel::hit_span(r, cell, attrs, mode, *span, h) : voxel::hit_cell(r, cell, attrs, mode, h)))
+          !(span ? voxel::hit_crossing(r, cell, attrs, mode, *span, h) : voxel::hit_cell(r, cell, attrs, mode, h)))
         return false;
       Hit& hit = hits[i];
       hit.t = h.t;
@@ -458,12 +477,12 @@ class SvoTraversal {
     for (size_t i = 0; i < rays.size(); ++i) out[i] = Vec3{1.0f, 1.0f, 1.0f};
     const VoxelHitMode mode = s.mode_;
     batch<kStats>(s, rays, stats, [&](uint32_t i, const LocalRay& r, const uint32_t* cell, const VoxelAttributes& attrs,
-                                      uint32_t, const voxel::CellSpan* span) {
+                                      uint32_t, const voxel::CellCrossing* span) {
       // Both traversals only report leaves the ray crosses with positive length (the kernel's
       // own test), so in cube mode every reported voxel is hit.
       CellHit h;
       if (mode != VoxelHitMode::Cubes &&
-          !(span ? voxel::hit_span(r, cell, attrs, mode, *span, h) : voxel::hit_cell(r, cell, attrs, mode, h)))
+          !(span ? voxel::hit_crossing(r, cell, attrs, mode, *span, h) : voxel::hit_cell(r, cell, attrs, mode, h)))
         return false;
       if (!(attrs.transparency > 0.0f)) {
         out[i] = Vec3{};

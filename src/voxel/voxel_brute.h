@@ -213,6 +213,27 @@ inline bool hit_span(const LocalRay& r, const uint32_t c[3], const VoxelAttribut
   return true;
 }
 
+/// What a traversal already computed of a ray crossing a cell: the span, and in contour mode
+/// possibly hit_span's answer itself (contour >= 0: 1 = hit at t, 0 = miss).
+struct CellCrossing {
+  CellSpan span;
+  int contour = -1;
+  float t = 0.0f;
+};
+
+/// hit_span from a CellCrossing (the octree's packets compute the contour test of all lanes
+/// at once, with the operations of hit_span in the same order).
+inline bool hit_crossing(const LocalRay& r, const uint32_t c[3], const VoxelAttributes& a, VoxelHitMode mode,
+                         const CellCrossing& x, CellHit& h) {
+  if (mode == VoxelHitMode::Contours && x.contour >= 0) {
+    if (x.contour == 0) return false;
+    h.t = x.t;
+    h.n = a.normal;
+    return true;
+  }
+  return hit_span(r, c, a, mode, x.span, h);
+}
+
 /// Ray against occupied cell \p c with attributes \p a in \p mode (semantics: voxel_tracer.h).
 inline bool hit_cell(const LocalRay& r, const uint32_t c[3], const VoxelAttributes& a, VoxelHitMode mode,
                      CellHit& h) {
