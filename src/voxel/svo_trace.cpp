@@ -347,10 +347,18 @@ class SvoTraversal {
     order.resize(rays.size());
     uint32_t count[9] = {};
     const voxel::LocalFrame frame(s.grid_);
-    for (size_t i = 0; i < rays.size(); ++i) {
-      LocalRay& r = local[i];
-      if (!voxel::make_local_ray(rays[i], frame, r)) r.mirror = 8;  // misses by definition
-      ++count[r.mirror];
+    // Through plain pointers from here on: stores into the rays (or anything else) would
+    // otherwise make GCC reload the thread-local vectors' data pointers for every ray.
+    LocalRay* const lr = local.data();
+    uint32_t* const ord = order.data();
+    {
+      const Ray* const in = rays.data();
+      const size_t nr = rays.size();
+      for (size_t i = 0; i < nr; ++i) {
+        LocalRay& r = lr[i];
+        if (!voxel::make_local_ray(in[i], frame, r)) r.mirror = 8;  // misses by definition
+        ++count[r.mirror];
+      }
     }
     uint32_t start[9];
     uint32_t sum = 0;
@@ -358,20 +366,20 @@ class SvoTraversal {
       start[k] = sum;
       sum += count[k];
     }
-    if (count[local[0].mirror] == rays.size()) {
+    if (count[lr[0].mirror] == rays.size()) {
       // One octant (the usual case for a tile's primary rays): the order is the batch's own,
       // without the counting sort's chain of read-modify-writes on start[].
-      for (size_t i = 0; i < rays.size(); ++i) order[i] = static_cast<uint32_t>(i);
-      start[local[0].mirror] += static_cast<uint32_t>(rays.size());
+      for (size_t i = 0; i < rays.size(); ++i) ord[i] = static_cast<uint32_t>(i);
+      start[lr[0].mirror] += static_cast<uint32_t>(rays.size());
     } else {
-      for (size_t i = 0; i < rays.size(); ++i) order[start[local[i].mirror]++] = static_cast<uint32_t>(i);
+      for (size_t i = 0; i < rays.size(); ++i) ord[start[lr[i].mirror]++] = static_cast<uint32_t>(i);
     }
     const uint32_t valid = start[7];  // after the loop start[k] is the end of octant k
 
     const int width = s.grid_.depth == 0 ? 1 : voxel::svo_packet_width();
     const int32_t root[3] = {0, 0, 0};
     const auto single = [&](uint32_t i) {
-      const LocalRay& r = local[i];
+      const LocalRay& r = lr[i];
       if (s.grid_.depth == 0) {
         const uint32_t cell[3] = {0, 0, 0};
         if constexpr (kStats) ++stats.triangles_tested;
@@ -384,7 +392,7 @@ class SvoTraversal {
       });
     };
     if (width <= 1) {
-      for (uint32_t k = 0; k < valid; ++k) single(order[k]);
+      for (uint32_t k = 0; k < valid; ++k) single(ord[k]);
       return;
     }
     PacketRays p;
@@ -395,17 +403,17 @@ class SvoTraversal {
     uint32_t idx[16];
     for (uint32_t begin = 0, octant_end = 0; begin < valid; begin = std::min(begin + static_cast<uint32_t>(width), octant_end)) {
       // Packets never straddle two octants.
-      const uint32_t mirror = local[order[begin]].mirror;
+      const uint32_t mirror = lr[ord[begin]].mirror;
       octant_end = start[mirror];
       const uint32_t n = std::min(static_cast<uint32_t>(width), octant_end - begin);
       if (n == 1) {
-        single(order[begin]);
+        single(ord[begin]);
         continue;
       }
       uint32_t fixed = 0;  // some lane does not move along some axis
       for (int j = 0; j < width; ++j) {
-        const uint32_t i = order[begin + std::min(static_cast<uint32_t>(j), n - 1)];
-        const LocalRay& r = local[i];
+        const uint32_t i = ord[begin + std::min(static_cast<uint32_t>(j), n - 1)];
+        const LocalRay& r = lr[i];
         idx[j] = i;
         fixed |= r.fixed;
         for (int a = 0; a < 3; ++a) {
@@ -425,13 +433,13 @@ class SvoTraversal {
       }
       if (spans == 2)  // the contour test's directions
         for (int j = 0; j < width; ++j)
-          for (int a = 0; a < 3; ++a) p.d[a][j] = local[idx[j]].d[a];
+          for (int a = 0; a < 3; ++a) p.d[a][j] = lr[idx[j]].d[a];
       const uint32_t lanes = n >= 32 ? ~0u : (1u << n) - 1u;
       const auto leaf = [&](int j, const uint32_t* cell, uint32_t child, const voxel::CellCrossing* span) {
         return lane_leaf(idx[j], *rl[j], cell, v.attrs(child), v.prim(child), span);
       };
       const auto scalar = [&](int j, int level, const int32_t* c, uint32_t node) {
-        return walk_node<kStats>(v, local[idx[j]], level, c, node, stats, [&](const uint32_t* cell, uint32_t child) {
+        return walk_node<kStats>(v, lr[idx[j]], level, c, node, stats, [&](const uint32_t* cell, uint32_t child) {
           return leaf(j, cell, child, nullptr);
         });
       };
@@ -458,13 +466,18 @@ class SvoTraversal {
                       std::span<const uint32_t> skip_prim, std::span<Hit> hits, TraceStats& stats) {
     for (size_t i = 0; i < rays.size(); ++i) hits[i] = Hit{};
     const VoxelHitMode mode = s.mode_;
-    batch<kStats>(s, rays, stats, [&](uint32_t i, const LocalRay& r, const uint32_t* cell, const VoxelAttributes& attrs,
-                                      uint32_t prim, const voxel::CellCrossing* span) {
+    // Plain pointers, captured by value (null: nothing to skip).
+    const uint32_t* const skip_m = skip.empty() ? nullptr : skip.data();
+    const uint32_t* const skip_p = skip_prim.empty() ? nullptr : skip_prim.data();
+    Hit* const out = hits.data();
+    batch<kStats>(s, rays, stats, [mode, skip_m, skip_p, out](uint32_t i, const LocalRay& r, const uint32_t* cell,
+                                                              const VoxelAttributes& attrs, uint32_t prim,
+                                                              const voxel::CellCrossing* span) {
       CellHit h;
-      if ((!skip.empty() && attrs.material == skip[i]) || (!skip_prim.empty() && prim == skip_prim[i]) ||
+      if ((skip_m && attrs.material == skip_m[i]) || (skip_p && prim == skip_p[i]) ||
           !(span ? voxel::hit_crossing(r, cell, attrs, mode, *span, h) : voxel::hit_cell(r, cell, attrs, mode, h)))
         return false;
-      Hit& hit = hits[i];
+      Hit& hit = out[i];
       hit.t = h.t;
       hit.prim = prim;
       hit.ng = h.n;
@@ -476,8 +489,9 @@ class SvoTraversal {
   static void transmit(const SparseVoxelOctree& s, std::span<const Ray> rays, std::span<Vec3> out, TraceStats& stats) {
     for (size_t i = 0; i < rays.size(); ++i) out[i] = Vec3{1.0f, 1.0f, 1.0f};
     const VoxelHitMode mode = s.mode_;
-    batch<kStats>(s, rays, stats, [&](uint32_t i, const LocalRay& r, const uint32_t* cell, const VoxelAttributes& attrs,
-                                      uint32_t, const voxel::CellCrossing* span) {
+    Vec3* const tr = out.data();
+    batch<kStats>(s, rays, stats, [mode, tr](uint32_t i, const LocalRay& r, const uint32_t* cell,
+                                             const VoxelAttributes& attrs, uint32_t, const voxel::CellCrossing* span) {
       // Both traversals only report leaves the ray crosses with positive length (the kernel's
       // own test), so in cube mode every reported voxel is hit.
       CellHit h;
@@ -485,10 +499,10 @@ class SvoTraversal {
           !(span ? voxel::hit_crossing(r, cell, attrs, mode, *span, h) : voxel::hit_cell(r, cell, attrs, mode, h)))
         return false;
       if (!(attrs.transparency > 0.0f)) {
-        out[i] = Vec3{};
+        tr[i] = Vec3{};
         return true;
       }
-      out[i] *= Vec3(attrs.transparency);
+      tr[i] *= Vec3(attrs.transparency);
       return false;
     });
   }
