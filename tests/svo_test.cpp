@@ -520,6 +520,113 @@ TEST(SvoPacket, EveryKernelEqualsBruteForceOnCoherentBundles) {
   }
 }
 
+// The packets compute each lane's crossing of a leaf (entry t, entry face, exit t) with vector
+// operations instead of calling the kernel's cell_span (svo_packet.inc): ties between entry
+// planes (rays through edges and corners), +-0 direction components (fixed axes, whose plane
+// distances are -inf or +inf), origins on voxel planes, entry distances of -0 and tmin on a
+// plane must all give the kernel's bits. Bundles of 16 rays of one octant, so they walk as
+// packets down to the leaves; compared with the brute force per kernel width, in both modes.
+TEST(SvoPacket, LeafSpansOfPacketsEqualTheKernelOnLatticeRays) {
+  const VoxelGrid g = dyadic_grid(4);  // local = (world + 1) * 8: lattice points are exact
+  const VoxelSet set = random_set(g, 1800, 77);
+  std::mt19937 rng(78);
+  const float s = g.voxel_size();
+  const auto zero = [&] { return (rng() & 1) ? 0.0f : -0.0f; };
+  const auto sign = [&] { return (rng() & 1) ? 1.0f : -1.0f; };
+  std::vector<Ray> rays;
+  for (int bundle = 0; bundle < 600; ++bundle) {
+    const int kind = bundle % 4;
+    // Direction signs and zeros shared by the bundle (one octant); magnitudes per lane.
+    const Vec3 sg(sign(), sign(), sign());
+    const int a0 = static_cast<int>(rng() % 3), a1 = (a0 + 1 + static_cast<int>(rng() % 2)) % 3;
+    Vec3 base;
+    for (int i = 0; i < 3; ++i) base[i] = static_cast<float>(static_cast<int>(rng() % 18) - 1);  // lattice, some outside
+    for (int j = 0; j < 16; ++j) {
+      Vec3 org = g.origin + base * s;
+      org[a0] += static_cast<float>(j % 4) * s;  // neighbouring lattice points
+      org[a1] += static_cast<float>(j / 4) * s;
+      Vec3 d;
+      switch (kind) {
+        case 0:  // along one axis: two fixed axes
+          d = Vec3(zero(), zero(), zero());
+          d[a0] = sg[a0] * (0.5f + static_cast<float>(j % 3));
+          break;
+        case 1:  // in a plane: one fixed axis, lattice slopes (edge crossings)
+          d = Vec3(sg.x * static_cast<float>(1 + j % 3), sg.y * static_cast<float>(1 + (j / 3) % 3),
+                   sg.z * static_cast<float>(1 + j % 2));
+          d[a0] = zero();
+          break;
+        case 2:  // a camera on a lattice point: every lane enters its first voxel at t = +-0
+          // (negative components give -0), diagonals through corners tie on every axis
+          org = g.origin + base * s;
+          d = Vec3(sg.x * (1.0f + 0.5f * static_cast<float>(j % 4)), sg.y * (1.0f + 0.5f * static_cast<float>(j / 4)), sg.z);
+          if (j % 5 == 0) d = Vec3(sg.x, sg.y, sg.z) * static_cast<float>(1 + j / 5);
+          break;
+        default: {  // generic directions, origin on a plane, offset along one axis
+          std::uniform_real_distribution<float> u(0.1f, 1.0f);
+          d = Vec3(sg.x * u(rng), sg.y * u(rng), sg.z * u(rng));
+          org[a1] += 0.37f * s;
+          break;
+        }
+      }
+      // Windows: from 0, from -0, from a plane distance (t of the next lattice plane along a0),
+      // and a bounded one ending on a plane.
+      float tmin = 0.0f, tmax = kInf;
+      switch (j % 4) {
+        case 1: tmin = -0.0f; break;
+        case 2: if (d[a0] != 0.0f) tmin = s / std::fabs(d[a0]); break;
+        case 3: if (d[a0] != 0.0f) tmax = 3.0f * s / std::fabs(d[a0]); break;
+        default: break;
+      }
+      rays.push_back(make_ray(org, d, tmin, tmax));
+    }
+  }
+  std::vector<uint32_t> skip(rays.size());
+  for (size_t i = 0; i < skip.size(); ++i) skip[i] = i % 2 == 0 ? kNoHit : static_cast<uint32_t>(i % 5);
+  const int cpu = voxel::svo_packet_width();
+  size_t starts_inside = 0, face_hits = 0;
+  for (const VoxelHitMode mode : {VoxelHitMode::Cubes, VoxelHitMode::Contours}) {
+    VoxelTracerOptions o;
+    o.mode = mode;
+    const std::unique_ptr<VoxelTracer> brute = build_voxel_tracer("voxel_brute", set, o);
+    std::vector<Hit> ref(rays.size()), ref_skip(rays.size());
+    std::vector<Vec3> ref_tr(rays.size());
+    brute->intersect(rays, ref);
+    brute->intersect_skipping(rays, skip, ref_skip);
+    brute->transmittance(rays, ref_tr);
+    for (size_t i = 0; i < rays.size(); ++i) {
+      if (!ref[i].hit()) continue;
+      (ref[i].t == rays[i].tmin ? starts_inside : face_hits) += 1;
+    }
+    const SparseVoxelOctree svo = SparseVoxelOctree::build(set, o);
+    for (const int width : {16, 8, 1}) {
+      if (width > cpu && width != 1) continue;
+      const PacketWidth limit(width);
+      const std::string what = std::string(to_string(mode)) + " width " + std::to_string(width);
+      std::vector<Hit> hits(rays.size()), hits_skip(rays.size());
+      std::vector<Vec3> tr(rays.size());
+      svo.intersect(rays, hits);
+      svo.intersect_skipping(rays, skip, hits_skip);
+      svo.transmittance(rays, tr);
+      size_t bad = 0, bad_skip = 0, bad_tr = 0;
+      for (size_t i = 0; i < rays.size(); ++i) {
+        if (!same_hit(ref[i], hits[i]) && ++bad <= 3)
+          ADD_FAILURE() << what << ": " << describe(hits[i]) << " vs brute " << describe(ref[i]) << " for " << describe(rays[i]);
+        if (!same_hit(ref_skip[i], hits_skip[i]) && ++bad_skip <= 3)
+          ADD_FAILURE() << what << " skip: " << describe(hits_skip[i]) << " vs brute " << describe(ref_skip[i]);
+        if (!(ref_tr[i] == tr[i]) && ++bad_tr <= 3)
+          ADD_FAILURE() << what << ": transmittance " << tr[i].x << " vs brute " << ref_tr[i].x << " for " << describe(rays[i]);
+      }
+      EXPECT_EQ(bad, 0u) << what;
+      EXPECT_EQ(bad_skip, 0u) << what;
+      EXPECT_EQ(bad_tr, 0u) << what;
+    }
+  }
+  // Both entry cases are exercised (through a face; from inside a voxel, the kernel's axis -1).
+  EXPECT_GT(face_hits, rays.size() / 4);
+  EXPECT_GT(starts_inside, rays.size() / 50);
+}
+
 TEST(Svo, NaNAndDegenerateRaysMiss) {
   const VoxelSet set = block_set(dyadic_grid(3), 0, 7, 1);  // everything occupied
   const SparseVoxelOctree svo = SparseVoxelOctree::build(set);

@@ -186,8 +186,10 @@ bool walk_node(const SvoView& v, const LocalRay& r, int level, const int32_t c[3
 struct alignas(64) PacketRays {
   float o[3][16];
   float inv[3][16];
+  float d[3][16];  ///< direction, 0 on fixed axes (as LocalRay::d; for the contour test)
   float tmin[16];
   float tmax[16];
+  float scale;     ///< LocalRay::scale, the same for every ray of a batch
 };
 
 }  // namespace specula
@@ -204,6 +206,13 @@ struct alignas(64) PacketRays {
 #define SVO_MIN _mm256_min_ps
 #define SVO_MAX _mm256_max_ps
 #define SVO_LT(a, b) static_cast<uint32_t>(_mm256_movemask_ps(_mm256_cmp_ps((a), (b), _CMP_LT_OQ)))
+#define SVO_GE(a, b) static_cast<uint32_t>(_mm256_movemask_ps(_mm256_cmp_ps((a), (b), _CMP_GE_OQ)))
+#define SVO_SEL_GE(a, b, x, y) _mm256_blendv_ps((y), (x), _mm256_cmp_ps((a), (b), _CMP_GE_OQ))
+#define SVO_STORE _mm256_store_ps
+#define SVO_ADD _mm256_add_ps
+#define SVO_DIV _mm256_div_ps
+#define SVO_LE(a, b) static_cast<uint32_t>(_mm256_movemask_ps(_mm256_cmp_ps((a), (b), _CMP_LE_OQ)))
+#define SVO_EQ(a, b) static_cast<uint32_t>(_mm256_movemask_ps(_mm256_cmp_ps((a), (b), _CMP_EQ_OQ)))
 #include "voxel/svo_packet.inc"
 #undef SVO_NS
 #undef SVO_TARGET
@@ -216,6 +225,13 @@ struct alignas(64) PacketRays {
 #undef SVO_MIN
 #undef SVO_MAX
 #undef SVO_LT
+#undef SVO_GE
+#undef SVO_SEL_GE
+#undef SVO_STORE
+#undef SVO_ADD
+#undef SVO_DIV
+#undef SVO_LE
+#undef SVO_EQ
 
 #define SVO_NS svo_avx512
 #define SVO_TARGET __attribute__((target("avx2,avx512f,popcnt,bmi")))
@@ -230,6 +246,13 @@ struct alignas(64) PacketRays {
 #define SVO_MIN(a, b) _mm512_maskz_min_ps(0xFFFF, (a), (b))
 #define SVO_MAX(a, b) _mm512_maskz_max_ps(0xFFFF, (a), (b))
 #define SVO_LT(a, b) static_cast<uint32_t>(_mm512_cmp_ps_mask((a), (b), _CMP_LT_OQ))
+#define SVO_GE(a, b) static_cast<uint32_t>(_mm512_cmp_ps_mask((a), (b), _CMP_GE_OQ))
+#define SVO_SEL_GE(a, b, x, y) _mm512_mask_blend_ps(_mm512_cmp_ps_mask((a), (b), _CMP_GE_OQ), (y), (x))
+#define SVO_STORE _mm512_store_ps
+#define SVO_ADD _mm512_add_ps
+#define SVO_DIV _mm512_div_ps
+#define SVO_LE(a, b) static_cast<uint32_t>(_mm512_cmp_ps_mask((a), (b), _CMP_LE_OQ))
+#define SVO_EQ(a, b) static_cast<uint32_t>(_mm512_cmp_ps_mask((a), (b), _CMP_EQ_OQ))
 #include "voxel/svo_packet.inc"
 #undef SVO_NS
 #undef SVO_TARGET
@@ -242,6 +265,13 @@ struct alignas(64) PacketRays {
 #undef SVO_MIN
 #undef SVO_MAX
 #undef SVO_LT
+#undef SVO_GE
+#undef SVO_SEL_GE
+#undef SVO_STORE
+#undef SVO_ADD
+#undef SVO_DIV
+#undef SVO_LE
+#undef SVO_EQ
 
 namespace specula {
 
@@ -272,9 +302,9 @@ class SvoTraversal {
                    static_cast<uint32_t>(s.leaf_attrs_.size()), depth, leaf_level, depth - leaf_level, s.mode_};
   }
 
-  /// One ray: calls leaf(lr, cell, attrs, prim) for the leaves (voxels, or nodes at the lod
-  /// level) it crosses, in ray order, with the ray in the leaf level's frame; stops when leaf
-  /// returns true.
+  /// One ray: calls leaf(lr, cell, attrs, prim, nullptr) for the leaves (voxels, or nodes at
+  /// the lod level) it crosses, in ray order, with the ray in the leaf level's frame; stops when
+  /// leaf returns true.
   template <bool kStats, class Leaf>
   static void walk(const SparseVoxelOctree& s, const Ray& ray, TraceStats& stats, Leaf&& leaf) {
     if constexpr (kStats) ++stats.rays;
@@ -283,21 +313,24 @@ class SvoTraversal {
     if (s.grid_.depth == 0) {
       const uint32_t cell[3] = {0, 0, 0};
       if constexpr (kStats) ++stats.triangles_tested;
-      leaf(r, cell, s.leaf_attrs_[0], 0u);
+      leaf(r, cell, s.leaf_attrs_[0], 0u, nullptr);
       return;
     }
     const SvoView v = view(s);
     const LocalRay rl = v.shift > 0 ? voxel::coarsen(r, v.shift) : r;
     const int32_t root[3] = {0, 0, 0};
     walk_node<kStats>(v, r, 0, root, 0, stats,
-                      [&](const uint32_t* cell, uint32_t child) { return leaf(rl, cell, v.attrs(child), v.prim(child)); });
+                      [&](const uint32_t* cell, uint32_t child) {
+                        return leaf(rl, cell, v.attrs(child), v.prim(child), nullptr);
+                      });
   }
 
   /// A batch: rays are mapped to the local frame, grouped by direction octant (keeping their
   /// order, so neighbours in the batch stay neighbours) and traced in packets of the CPU's
   /// vector width; a lone ray (or a CPU without AVX2) uses the single-ray traversal.
-  /// lane_leaf(i, lr, cell, attrs, prim) is called for ray i (index into the batch) and
-  /// returns true when the ray is done; done(i) is called for rays that miss by definition.
+  /// lane_leaf(i, lr, cell, attrs, prim, span) is called for ray i (index into the batch) and
+  /// returns true when the ray is done; span is null or what the packet computed of the ray's
+  /// crossing of the cell (voxel::CellCrossing; without the level of detail).
   template <bool kStats, class LaneLeaf>
   static void batch(const SparseVoxelOctree& s, std::span<const Ray> rays, TraceStats& stats, LaneLeaf&& lane_leaf) {
     if constexpr (kStats) stats.rays += rays.size();
@@ -314,10 +347,18 @@ class SvoTraversal {
     order.resize(rays.size());
     uint32_t count[9] = {};
     const voxel::LocalFrame frame(s.grid_);
-    for (size_t i = 0; i < rays.size(); ++i) {
-      LocalRay& r = local[i];
-      if (!voxel::make_local_ray(rays[i], frame, r)) r.mirror = 8;  // misses by definition
-      ++count[r.mirror];
+    // Through plain pointers from here on: stores into the rays (or anything else) would
+    // otherwise make GCC reload the thread-local vectors' data pointers for every ray.
+    LocalRay* const lr = local.data();
+    uint32_t* const ord = order.data();
+    {
+      const Ray* const in = rays.data();
+      const size_t nr = rays.size();
+      for (size_t i = 0; i < nr; ++i) {
+        LocalRay& r = lr[i];
+        if (!voxel::make_local_ray(in[i], frame, r)) r.mirror = 8;  // misses by definition
+        ++count[r.mirror];
+      }
     }
     uint32_t start[9];
     uint32_t sum = 0;
@@ -325,52 +366,54 @@ class SvoTraversal {
       start[k] = sum;
       sum += count[k];
     }
-    if (count[local[0].mirror] == rays.size()) {
+    if (count[lr[0].mirror] == rays.size()) {
       // One octant (the usual case for a tile's primary rays): the order is the batch's own,
       // without the counting sort's chain of read-modify-writes on start[].
-      for (size_t i = 0; i < rays.size(); ++i) order[i] = static_cast<uint32_t>(i);
-      start[local[0].mirror] += static_cast<uint32_t>(rays.size());
+      for (size_t i = 0; i < rays.size(); ++i) ord[i] = static_cast<uint32_t>(i);
+      start[lr[0].mirror] += static_cast<uint32_t>(rays.size());
     } else {
-      for (size_t i = 0; i < rays.size(); ++i) order[start[local[i].mirror]++] = static_cast<uint32_t>(i);
+      for (size_t i = 0; i < rays.size(); ++i) ord[start[lr[i].mirror]++] = static_cast<uint32_t>(i);
     }
     const uint32_t valid = start[7];  // after the loop start[k] is the end of octant k
 
     const int width = s.grid_.depth == 0 ? 1 : voxel::svo_packet_width();
     const int32_t root[3] = {0, 0, 0};
     const auto single = [&](uint32_t i) {
-      const LocalRay& r = local[i];
+      const LocalRay& r = lr[i];
       if (s.grid_.depth == 0) {
         const uint32_t cell[3] = {0, 0, 0};
         if constexpr (kStats) ++stats.triangles_tested;
-        lane_leaf(i, r, cell, s.leaf_attrs_[0], 0u);
+        lane_leaf(i, r, cell, s.leaf_attrs_[0], 0u, nullptr);
         return;
       }
       const LocalRay rl = v.shift > 0 ? voxel::coarsen(r, v.shift) : r;
       walk_node<kStats>(v, r, 0, root, 0, stats, [&](const uint32_t* cell, uint32_t child) {
-        return lane_leaf(i, rl, cell, v.attrs(child), v.prim(child));
+        return lane_leaf(i, rl, cell, v.attrs(child), v.prim(child), nullptr);
       });
     };
     if (width <= 1) {
-      for (uint32_t k = 0; k < valid; ++k) single(order[k]);
+      for (uint32_t k = 0; k < valid; ++k) single(ord[k]);
       return;
     }
     PacketRays p;
+    p.scale = frame.scale;
+    const int spans = v.shift != 0 ? 0 : v.mode == VoxelHitMode::Contours ? 2 : 1;
     LocalRay coarse[16];      // the lanes' rays in the lod level's frame (shift > 0 only)
     const LocalRay* rl[16];   // each lane's ray for the leaf tests
     uint32_t idx[16];
     for (uint32_t begin = 0, octant_end = 0; begin < valid; begin = std::min(begin + static_cast<uint32_t>(width), octant_end)) {
       // Packets never straddle two octants.
-      const uint32_t mirror = local[order[begin]].mirror;
+      const uint32_t mirror = lr[ord[begin]].mirror;
       octant_end = start[mirror];
       const uint32_t n = std::min(static_cast<uint32_t>(width), octant_end - begin);
       if (n == 1) {
-        single(order[begin]);
+        single(ord[begin]);
         continue;
       }
       uint32_t fixed = 0;  // some lane does not move along some axis
       for (int j = 0; j < width; ++j) {
-        const uint32_t i = order[begin + std::min(static_cast<uint32_t>(j), n - 1)];
-        const LocalRay& r = local[i];
+        const uint32_t i = ord[begin + std::min(static_cast<uint32_t>(j), n - 1)];
+        const LocalRay& r = lr[i];
         idx[j] = i;
         fixed |= r.fixed;
         for (int a = 0; a < 3; ++a) {
@@ -388,21 +431,32 @@ class SvoTraversal {
           }
         }
       }
+      if (spans == 2)  // the contour test's directions
+        for (int j = 0; j < width; ++j)
+          for (int a = 0; a < 3; ++a) p.d[a][j] = lr[idx[j]].d[a];
       const uint32_t lanes = n >= 32 ? ~0u : (1u << n) - 1u;
-      const auto leaf = [&](int j, const uint32_t* cell, uint32_t child) {
-        return lane_leaf(idx[j], *rl[j], cell, v.attrs(child), v.prim(child));
+      const auto leaf = [&](int j, const uint32_t* cell, uint32_t child, const voxel::CellCrossing* span) {
+        return lane_leaf(idx[j], *rl[j], cell, v.attrs(child), v.prim(child), span);
       };
       const auto scalar = [&](int j, int level, const int32_t* c, uint32_t node) {
-        return walk_node<kStats>(v, local[idx[j]], level, c, node, stats, [&](const uint32_t* cell, uint32_t child) {
-          return leaf(j, cell, child);
+        return walk_node<kStats>(v, lr[idx[j]], level, c, node, stats, [&](const uint32_t* cell, uint32_t child) {
+          return leaf(j, cell, child, nullptr);
         });
       };
+      // Spans from the packet's planes when the leaves are voxels, and in contour mode the slab
+      // test too (see packet_walk): kSpan 0 none, 1 spans, 2 spans and contours.
+      const auto run = [&]<bool kFixed, int kSpan>() {
+        if (width == 16) svo_avx512::packet_walk<kStats, kFixed, kSpan>(v, p, mirror, lanes, stats, leaf, scalar);
+        else svo_avx2::packet_walk<kStats, kFixed, kSpan>(v, p, mirror, lanes, stats, leaf, scalar);
+      };
       if (fixed) {
-        if (width == 16) svo_avx512::packet_walk<kStats, true>(v, p, mirror, lanes, stats, leaf, scalar);
-        else svo_avx2::packet_walk<kStats, true>(v, p, mirror, lanes, stats, leaf, scalar);
+        if (spans == 0) run.template operator()<true, 0>();
+        else if (spans == 1) run.template operator()<true, 1>();
+        else run.template operator()<true, 2>();
       } else {
-        if (width == 16) svo_avx512::packet_walk<kStats, false>(v, p, mirror, lanes, stats, leaf, scalar);
-        else svo_avx2::packet_walk<kStats, false>(v, p, mirror, lanes, stats, leaf, scalar);
+        if (spans == 0) run.template operator()<false, 0>();
+        else if (spans == 1) run.template operator()<false, 1>();
+        else run.template operator()<false, 2>();
       }
     }
   }
@@ -412,13 +466,18 @@ class SvoTraversal {
                       std::span<const uint32_t> skip_prim, std::span<Hit> hits, TraceStats& stats) {
     for (size_t i = 0; i < rays.size(); ++i) hits[i] = Hit{};
     const VoxelHitMode mode = s.mode_;
-    batch<kStats>(s, rays, stats, [&](uint32_t i, const LocalRay& r, const uint32_t* cell, const VoxelAttributes& attrs,
-                                      uint32_t prim) {
+    // Plain pointers, captured by value (null: nothing to skip).
+    const uint32_t* const skip_m = skip.empty() ? nullptr : skip.data();
+    const uint32_t* const skip_p = skip_prim.empty() ? nullptr : skip_prim.data();
+    Hit* const out = hits.data();
+    batch<kStats>(s, rays, stats, [mode, skip_m, skip_p, out](uint32_t i, const LocalRay& r, const uint32_t* cell,
+                                                              const VoxelAttributes& attrs, uint32_t prim,
+                                                              const voxel::CellCrossing* span) {
       CellHit h;
-      if ((!skip.empty() && attrs.material == skip[i]) || (!skip_prim.empty() && prim == skip_prim[i]) ||
-          !voxel::hit_cell(r, cell, attrs, mode, h))
+      if ((skip_m && attrs.material == skip_m[i]) || (skip_p && prim == skip_p[i]) ||
+          !(span ? voxel::hit_crossing(r, cell, attrs, mode, *span, h) : voxel::hit_cell(r, cell, attrs, mode, h)))
         return false;
-      Hit& hit = hits[i];
+      Hit& hit = out[i];
       hit.t = h.t;
       hit.prim = prim;
       hit.ng = h.n;
@@ -430,17 +489,20 @@ class SvoTraversal {
   static void transmit(const SparseVoxelOctree& s, std::span<const Ray> rays, std::span<Vec3> out, TraceStats& stats) {
     for (size_t i = 0; i < rays.size(); ++i) out[i] = Vec3{1.0f, 1.0f, 1.0f};
     const VoxelHitMode mode = s.mode_;
-    batch<kStats>(s, rays, stats, [&](uint32_t i, const LocalRay& r, const uint32_t* cell, const VoxelAttributes& attrs,
-                                      uint32_t) {
+    Vec3* const tr = out.data();
+    batch<kStats>(s, rays, stats, [mode, tr](uint32_t i, const LocalRay& r, const uint32_t* cell,
+                                             const VoxelAttributes& attrs, uint32_t, const voxel::CellCrossing* span) {
       // Both traversals only report leaves the ray crosses with positive length (the kernel's
       // own test), so in cube mode every reported voxel is hit.
       CellHit h;
-      if (mode != VoxelHitMode::Cubes && !voxel::hit_cell(r, cell, attrs, mode, h)) return false;
+      if (mode != VoxelHitMode::Cubes &&
+          !(span ? voxel::hit_crossing(r, cell, attrs, mode, *span, h) : voxel::hit_cell(r, cell, attrs, mode, h)))
+        return false;
       if (!(attrs.transparency > 0.0f)) {
-        out[i] = Vec3{};
+        tr[i] = Vec3{};
         return true;
       }
-      out[i] *= Vec3(attrs.transparency);
+      tr[i] *= Vec3(attrs.transparency);
       return false;
     });
   }

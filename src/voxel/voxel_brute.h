@@ -180,11 +180,11 @@ struct CellHit {
   Vec3 n;
 };
 
-/// Ray against occupied cell \p c with attributes \p a in \p mode (semantics: voxel_tracer.h).
-inline bool hit_cell(const LocalRay& r, const uint32_t c[3], const VoxelAttributes& a, VoxelHitMode mode,
-                     CellHit& h) {
-  CellSpan s;
-  if (!cell_span(r, c, s)) return false;
+/// hit_cell for a cell the ray crosses, given its crossing \p s: te and axis exactly as
+/// cell_span gives them, tx equal in value (it is only compared). The octree's packets compute
+/// the span of every lane with vector operations and call this directly.
+inline bool hit_span(const LocalRay& r, const uint32_t c[3], const VoxelAttributes& a, VoxelHitMode mode,
+                     const CellSpan& s, CellHit& h) {
   if (mode == VoxelHitMode::Cubes) {
     h.t = s.te;
     h.n = s.axis >= 0 ? face_normal(r, s.axis) : inside_normal(r);
@@ -211,6 +211,34 @@ inline bool hit_cell(const LocalRay& r, const uint32_t c[3], const VoxelAttribut
   h.t = t;
   h.n = a.normal;
   return true;
+}
+
+/// What a traversal already computed of a ray crossing a cell: the span, and in contour mode
+/// possibly hit_span's answer itself (contour >= 0: 1 = hit at t, 0 = miss).
+struct CellCrossing {
+  CellSpan span;
+  int contour = -1;
+  float t = 0.0f;
+};
+
+/// hit_span from a CellCrossing (the octree's packets compute the contour test of all lanes
+/// at once, with the operations of hit_span in the same order).
+inline bool hit_crossing(const LocalRay& r, const uint32_t c[3], const VoxelAttributes& a, VoxelHitMode mode,
+                         const CellCrossing& x, CellHit& h) {
+  if (mode == VoxelHitMode::Contours && x.contour >= 0) {
+    if (x.contour == 0) return false;
+    h.t = x.t;
+    h.n = a.normal;
+    return true;
+  }
+  return hit_span(r, c, a, mode, x.span, h);
+}
+
+/// Ray against occupied cell \p c with attributes \p a in \p mode (semantics: voxel_tracer.h).
+inline bool hit_cell(const LocalRay& r, const uint32_t c[3], const VoxelAttributes& a, VoxelHitMode mode,
+                     CellHit& h) {
+  CellSpan s;
+  return cell_span(r, c, s) && hit_span(r, c, a, mode, s, h);
 }
 
 /// Width of the octree's packet traversal on this CPU (16 with AVX-512, 8 with AVX2, 1 = single
