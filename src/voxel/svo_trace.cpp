@@ -213,25 +213,7 @@ struct alignas(64) PacketRays {
 #define SVO_DIV _mm256_div_ps
 #define SVO_LE(a, b) static_cast<uint32_t>(_mm256_movemask_ps(_mm256_cmp_ps((a), (b), _CMP_LE_OQ)))
 #define SVO_EQ(a, b) static_cast<uint32_t>(_mm256_movemask_ps(_mm256_cmp_ps((a), (b), _CMP_EQ_OQ)))
-#include "voxel/svo_packet.inc"
-#undef SVO_NS
-#undef SVO_TARGET
-#undef SVO_WIDTH
-#undef SVO_VF
-#undef SVO_LOAD
-#undef SVO_SET1
-#undef SVO_SUB
-#undef SVO_MUL
-#undef SVO_MIN
-#undef SVO_MAX
-#undef SVO_LT
-#undef SVO_GE
-#undef SVO_SEL_GE
-#undef SVO_STORE
-#undef SVO_ADD
-#undef SVO_DIV
-#undef SVO_LE
-#undef SVO_EQ
+#include "voxel/svo_packet.inc"  // (undefines the SVO_ macros at its end)
 
 #define SVO_NS svo_avx512
 #define SVO_TARGET __attribute__((target("avx2,avx512f,popcnt,bmi")))
@@ -253,25 +235,7 @@ struct alignas(64) PacketRays {
 #define SVO_DIV _mm512_div_ps
 #define SVO_LE(a, b) static_cast<uint32_t>(_mm512_cmp_ps_mask((a), (b), _CMP_LE_OQ))
 #define SVO_EQ(a, b) static_cast<uint32_t>(_mm512_cmp_ps_mask((a), (b), _CMP_EQ_OQ))
-#include "voxel/svo_packet.inc"
-#undef SVO_NS
-#undef SVO_TARGET
-#undef SVO_WIDTH
-#undef SVO_VF
-#undef SVO_LOAD
-#undef SVO_SET1
-#undef SVO_SUB
-#undef SVO_MUL
-#undef SVO_MIN
-#undef SVO_MAX
-#undef SVO_LT
-#undef SVO_GE
-#undef SVO_SEL_GE
-#undef SVO_STORE
-#undef SVO_ADD
-#undef SVO_DIV
-#undef SVO_LE
-#undef SVO_EQ
+#include "voxel/svo_packet.inc"  // (undefines the SVO_ macros at its end)
 
 namespace specula {
 
