@@ -581,3 +581,44 @@ TEST(Render, RaysLeavingASurfaceDoNotHitItAgain) {
     for (const Vec3& px : f.color) expect_vec_near(px, s.sky.color, 1e-6f, "offset " + std::to_string(offset));
   }
 }
+
+TEST(Render, EveryLightSampleOfAHitGetsItsShadowRay) {
+  // Every pixel sees one unoccluded diffuse plane lit by a directional light, a point light, a
+  // 16-sample sphere light and a zero-radius sphere light: each hit shoots 1 + 1 + 16 + 1 shadow
+  // rays (the most the integrator sizes its shadow batch for), all of them transmit exactly 1,
+  // so the film equals the one rendered without shadow rays bit for bit (same additions in the
+  // same order per pixel).
+  Scene s = base_scene();
+  add_quad(s, "plane", {0, 0, 0}, {0, 0, 50}, {50, 0, 0}, s.add_material(diffuse(Vec3{0.5f})));
+  Light sun;
+  sun.type = LightType::Directional;
+  sun.direction = normalize(Vec3{0.2f, -1.0f, 0.1f});
+  sun.intensity = 0.5f;
+  s.lights.push_back(sun);
+  s.lights.push_back(point_light({0.5f, 2, 0}, 2.0f));
+  Light sphere = point_light({-0.5f, 3, 0.2f}, 3.0f);
+  sphere.type = LightType::Sphere;
+  sphere.radius = 0.1f;
+  sphere.samples = 16;
+  s.lights.push_back(sphere);
+  sphere.radius = 0.0f;
+  sphere.position = {0, 2.5f, -0.3f};
+  s.lights.push_back(sphere);
+  s.cameras.push_back(look({0, 3, 0.5f}, {0, 0, 0}));
+  const auto tracer = make_tracer(s);
+  for (const int tile : {16, 5}) {
+    RenderOptions o = small();
+    o.tile_size = tile;
+    RenderStats with, without;
+    const Film a = render_whitted(s, *tracer, o, &with);
+    o.shadows = false;
+    const Film b = render_whitted(s, *tracer, o, &without);
+    const uint64_t pixels = static_cast<uint64_t>(o.width) * static_cast<uint64_t>(o.height);
+    EXPECT_EQ(with.primary_rays, pixels);
+    EXPECT_EQ(with.shadow_rays, pixels * 19) << "tile " << tile;
+    EXPECT_EQ(without.shadow_rays, 0u);
+    ASSERT_EQ(a.color.size(), b.color.size());
+    EXPECT_EQ(std::memcmp(a.color.data(), b.color.data(), a.color.size() * sizeof(Vec3)), 0) << "tile " << tile;
+    EXPECT_GT(a.color[a.color.size() / 2].x, 0.0f);
+  }
+}

@@ -136,7 +136,7 @@ struct TraceOrder {
   uint32_t counts[kMaxGroups + 1] = {};
 
   /// Fills `order` from per-ray keys; false when it would be the identity (nothing to do).
-  bool build(const std::vector<uint32_t>& key) {
+  bool build(std::span<const uint32_t> key) {
     const size_t n = key.size();
     std::vector<uint8_t>& g = group_;
     g.resize(n);
@@ -168,14 +168,14 @@ struct TraceOrder {
   /// results) fills one result per ray, \p out receives them in the rays' own positions.
   /// \p sorted_rays and \p sorted_out are scratch.
   template <class Result, class Trace>
-  void trace_in_order(const std::vector<Ray>& rays, std::vector<Ray>& sorted_rays, std::vector<Result>& sorted_out,
-                      std::vector<Result>& out, Trace&& trace) const {
+  void trace_in_order(std::span<const Ray> rays, std::vector<Ray>& sorted_rays, std::vector<Result>& sorted_out,
+                      std::span<Result> out, Trace&& trace) const {
     const size_t n = order.size();
     sorted_rays.resize(n);
     sorted_out.assign(n, Result{});
     for (size_t j = 0; j < n; ++j) sorted_rays[j] = rays[order[j]];
     trace(std::span<const Ray>(sorted_rays), std::span<Result>(sorted_out));
-    out.resize(n);  // every entry written below: `order` is a permutation
+    // every entry of out[0, n) written below: `order` is a permutation
     for (size_t j = 0; j < n; ++j) out[order[j]] = sorted_out[j];
   }
 
@@ -203,14 +203,33 @@ struct ShadeMaterial {
   bool lit = false;  ///< whether a light can add anything (kd or the specular colour non-zero)
 };
 
+/// A shadow ray's payload: the radiance it brings to its pixel when unoccluded.
+struct ShadowRequest {
+  Vec3 contrib;
+  uint32_t pixel;  ///< index inside the tile
+};
+
+/// Grows \p v to at least \p n entries (never shrinks: the vectors below are storage sized to the
+/// largest batch so far, their live length is a count of its own).
+template <class T>
+void ensure_size(std::vector<T>& v, size_t n) {
+  if (v.size() < n) v.resize(n);
+}
+
+/// Per-thread storage of a tile's wavefronts. The wavefront arrays and the shadow batch are
+/// written by index up to a bound known before shading (2 rays and shadow_per_hit shadow rays per
+/// hit), not push_back'ed: the live lengths are n_rays, n_next and n_shadow.
 struct Scratch {
   std::vector<Ray> rays, next_rays;  ///< the wavefront being traced and the one being built
   std::vector<PathState> paths, next_paths;
+  size_t n_rays = 0, n_next = 0;
   std::vector<Hit> hits;
   std::vector<Ray> shadow_rays;
-  std::vector<Vec3> shadow_contrib, shadow_t;
-  std::vector<uint32_t> shadow_pixel;
+  std::vector<ShadowRequest> shadow_req;
+  std::vector<Vec3> shadow_t;
+  size_t n_shadow = 0;
   std::vector<Vec3> accum;
+  std::vector<Vec3> columns;  ///< per tile column: PinholeCamera::column of its pixel centre
   std::vector<uint64_t> cost;
   std::vector<uint32_t> skip;  ///< per ray: material of the voxel medium it is in (kNoHit: none)
   std::vector<uint32_t> skip_prim;  ///< per ray: the voxel it leaves (PathState::leave)
@@ -221,6 +240,8 @@ struct Scratch {
   std::vector<Hit> sorted_hits;
   std::vector<Vec3> sorted_t;
   ShadeMaterial voxel_material;  ///< the material of the voxel hit being shaded
+  /// Index into Context::shade whose constant fields voxel_material holds (SIZE_MAX: none yet).
+  size_t voxel_material_index = SIZE_MAX;
 };
 
 
@@ -301,6 +322,7 @@ struct Context {
   std::vector<ShadeMaterial> shade{};///< per scene material, then the fallback material
   std::vector<uint8_t> absorbing{};  ///< per scene material: some absorption coefficient > 0
   std::vector<LightSetup> lights{};  ///< lights that can contribute (power > 0)
+  size_t shadow_per_hit = 0;          ///< most shadow rays one hit shoots (one per light sample)
 
   /// Whether a hit record refers to something this context can shade.
   bool valid(const Hit& hit) const {
@@ -326,12 +348,10 @@ struct Context {
 Vec3 medium_attenuation(const Context& ctx, int id, float dist) {
   if (id < 0 || static_cast<size_t>(id) >= ctx.scene.materials.size()) return Vec3{1.0f};
   const Vec3& sigma = ctx.scene.materials[static_cast<size_t>(id)].absorption;
-  Vec3 out{1.0f};
-  for (int c = 0; c < 3; ++c) {
-    if (sigma[c] <= 0.0f) continue;
-    out[c] = std::isfinite(dist) ? std::exp(-sigma[c] * dist) : 0.0f;
-  }
-  return out;
+  // Component by component in registers (no indexed stores that the caller reloads as a vector).
+  const bool finite = std::isfinite(dist);
+  const auto channel = [&](float sg) { return sg <= 0.0f ? 1.0f : (finite ? std::exp(-sg * dist) : 0.0f); };
+  return Vec3{channel(sigma.x), channel(sigma.y), channel(sigma.z)};
 }
 
 /// The per-pixel rotation of the sphere-light sample spiral. Opaque to the optimiser (GCC's
@@ -379,13 +399,14 @@ SPECULA_OPAQUE float sample_rotation(uint32_t global_pixel) {
     return max_component(c) > 0.0f;
   };
   // The shadow ray's coherence key: the path's history and the light.
+  // Written by index: render_tile sized the batch for shadow_per_hit rays per hit.
   const auto add = [&](const Vec3& c, const Ray& shadow, const LightSetup& light) {
-    s.shadow_rays.push_back(shadow);
-    s.shadow_contrib.push_back(c);
-    s.shadow_pixel.push_back(pixel);
+    const size_t k = s.n_shadow++;
+    s.shadow_rays[k] = shadow;
+    s.shadow_req[k] = ShadowRequest{c, pixel};
     if (ctx.group_rays) {  // only read where batches are grouped
       const auto index = static_cast<uint32_t>(std::min<ptrdiff_t>(&light - ctx.lights.data(), 255));
-      s.shadow_key.push_back((uint32_t{history} << 8) | index);
+      s.shadow_key[k] = (uint32_t{history} << 8) | index;
     }
   };
 
@@ -459,11 +480,20 @@ Surface triangle_surface(const Context& ctx, const Hit& hit) {
 
 /// A voxel hit: the voxel's averaged colour, reflectivity, transparency and ior over the
 /// material of its largest triangle part (specular, Phong exponent, absorption, emission);
-/// the normal the tracer reports (cube face or contour plane). \p storage holds the material.
-Surface voxel_surface(const Context& ctx, const Ray& ray, const Hit& hit, ShadeMaterial& storage) {
+/// the normal the tracer reports (cube face or contour plane). Scratch::voxel_material holds the
+/// material.
+Surface voxel_surface(const Context& ctx, Scratch& s, const Ray& ray, const Hit& hit) {
   const VoxelAttributes& a = ctx.voxels->attributes(hit.prim);
-  storage = ctx.shade[ctx.shade_index(a.material)];  // its ior is still the material's own
-  finish_shade_material(storage, a.colour, a.reflectivity, a.transparency, a.transparency > 0.0f ? a.ior : storage.ior,
+  ShadeMaterial& storage = s.voxel_material;
+  const size_t index = ctx.shade_index(a.material);
+  const ShadeMaterial& base = ctx.shade[index];
+  // The material's own fields (specular, exponent, emission) are copied only when the material
+  // changes from the previous voxel hit: finish_shade_material rewrites every per-hit field.
+  if (index != s.voxel_material_index) {
+    storage = base;
+    s.voxel_material_index = index;
+  }
+  finish_shade_material(storage, a.colour, a.reflectivity, a.transparency, a.transparency > 0.0f ? a.ior : base.ior,
                         ctx.scene.ambient);
   Surface sf;
   sf.p = ray.org + ray.dir * hit.t;
@@ -529,18 +559,20 @@ void shade_hit(const Context& ctx, Scratch& s, const Ray& ray, const PathState& 
     if (max_component(w) >= kMinWeight) {
       Vec3 r = reflect(d, ns_f);
       if (dot(r, ng_f) <= 0.0f) r = reflect(d, ng_f);  // keep it above the geometric surface
-      s.next_rays.push_back(Ray{offset_ray_origin(p, ng_f), 0.0f, normalize(r), kInf});
-      s.next_paths.push_back(PathState{w, seg.pixel, seg.global, static_cast<uint8_t>(seg.reflect_depth + 1),
-                                       seg.refract_depth, next_history(seg.history, 0), seg.media, leave});
+      const size_t k = s.n_next++;  // render_tile sized next_* for two rays per hit
+      s.next_rays[k] = Ray{offset_ray_origin(p, ng_f), 0.0f, normalize(r), kInf};
+      s.next_paths[k] = PathState{w, seg.pixel, seg.global, static_cast<uint8_t>(seg.reflect_depth + 1),
+                                  seg.refract_depth, next_history(seg.history, 0), seg.media, leave};
     }
   }
   if (refr_w > 0.0f && seg.refract_depth < ctx.max_refract) {
     const Vec3 w = weight * refr_w;
     if (max_component(w) >= kMinWeight) {
-      s.next_rays.push_back(Ray{offset_ray_origin(p, -ng_f), 0.0f, refr_dir, kInf});
-      s.next_paths.push_back(PathState{w, seg.pixel, seg.global, seg.reflect_depth,
-                                       static_cast<uint8_t>(seg.refract_depth + 1), next_history(seg.history, 1),
-                                       refr_media, leave});
+      const size_t k = s.n_next++;
+      s.next_rays[k] = Ray{offset_ray_origin(p, -ng_f), 0.0f, refr_dir, kInf};
+      s.next_paths[k] = PathState{w, seg.pixel, seg.global, seg.reflect_depth,
+                                  static_cast<uint8_t>(seg.refract_depth + 1), next_history(seg.history, 1),
+                                  refr_media, leave};
     }
   }
 }
@@ -559,28 +591,42 @@ void render_tile(const Context& ctx, const SkyEval& sky, Scratch& s, const Pinho
 
   s.accum.assign(npix, Vec3{});
   if (ctx.want_cost) s.cost.assign(npix, 0);
-  s.rays.clear();
-  s.paths.clear();
   // Primary rays in 4x4 pixel blocks: every 16 consecutive rays of the wavefront are neighbours,
   // which a tracer may trace as one packet (the BVH does), and so are the shadow rays their hits
   // shoot. Each pixel's own segments keep their order, so the image is the same bit for bit.
-  for (int by = y0; by < y1; by += 4)
-    for (int bx = x0; bx < x1; bx += 4)
-      for (int y = by; y < std::min(by + 4, y1); ++y)
-        for (int x = bx; x < std::min(bx + 4, x1); ++x) {
-          s.rays.push_back(camera.generate(static_cast<float>(x) + 0.5f, static_cast<float>(y) + 0.5f));
-          PathState& ps = s.paths.emplace_back();
-          ps.weight = Vec3{1.0f};
-          ps.pixel = static_cast<uint32_t>((y - y0) * tw + (x - x0));
-          ps.global = static_cast<uint32_t>(y) * static_cast<uint32_t>(ctx.width) + static_cast<uint32_t>(x);
-          ps.reflect_depth = 0;
-          ps.refract_depth = 0;
-          ps.history = 1;
+  // The camera's per-column half of the direction is computed once per column of the tile
+  // (PinholeCamera::column: the same sum in the same order as generate()).
+  ensure_size(s.columns, static_cast<size_t>(tw));
+  for (int x = x0; x < x1; ++x) s.columns[static_cast<size_t>(x - x0)] = camera.column(static_cast<float>(x) + 0.5f);
+  ensure_size(s.rays, npix);
+  ensure_size(s.paths, npix);
+  {
+    size_t k = 0;
+    for (int by = y0; by < y1; by += 4)
+      for (int bx = x0; bx < x1; bx += 4)
+        for (int y = by; y < std::min(by + 4, y1); ++y) {
+          const float py = static_cast<float>(y) + 0.5f;
+          for (int x = bx; x < std::min(bx + 4, x1); ++x, ++k) {
+            s.rays[k] = camera.ray_from_column(s.columns[static_cast<size_t>(x - x0)], py);
+            PathState& ps = s.paths[k];
+            ps = PathState{};
+            ps.weight = Vec3{1.0f};
+            ps.pixel = static_cast<uint32_t>((y - y0) * tw + (x - x0));
+            ps.global = static_cast<uint32_t>(y) * static_cast<uint32_t>(ctx.width) + static_cast<uint32_t>(x);
+            ps.reflect_depth = 0;
+            ps.refract_depth = 0;
+            ps.history = 1;
+          }
         }
+    s.n_rays = k;
+  }
   counters.primary += npix;
+  s.voxel_material_index = SIZE_MAX;
 
-  while (!s.rays.empty()) {
-    const size_t n = s.rays.size();
+  while (s.n_rays != 0) {
+    const size_t n = s.n_rays;
+    const std::span<const Ray> rays(s.rays.data(), n);
+    const std::span<const PathState> paths(s.paths.data(), n);
     // Voxel media (seed 001): a ray inside a medium passes the voxels of that medium's material.
     std::span<const uint32_t> skip, skip_prim;
     if (ctx.voxels) {
@@ -588,59 +634,65 @@ void render_tile(const Context& ctx, const SkyEval& sky, Scratch& s, const Pinho
       s.skip_prim.resize(n);
       bool any = false, any_prim = false;
       for (size_t i = 0; i < n; ++i) {
-        const int top = s.paths[i].media.top();
+        const int top = paths[i].media.top();
         s.skip[i] = top < 0 ? kNoHit : static_cast<uint32_t>(top);
-        s.skip_prim[i] = s.paths[i].leave;
+        s.skip_prim[i] = paths[i].leave;
         any = any || top >= 0;
-        any_prim = any_prim || s.paths[i].leave != kNoHit;
+        any_prim = any_prim || paths[i].leave != kNoHit;
       }
       if (any) skip = s.skip;
       if (any_prim) skip_prim = s.skip_prim;
     }
-    const auto trace = [&](std::span<const Ray> rays, std::span<const uint32_t> skips,
+    const auto trace = [&](std::span<const Ray> r, std::span<const uint32_t> skips,
                            std::span<const uint32_t> skip_prims, std::span<Hit> hits, TraceStats* ts) {
       if (!skips.empty() || !skip_prims.empty())
-        ctx.voxels->intersect_skipping(rays, skips, hits, ts, skip_prims);
+        ctx.voxels->intersect_skipping(r, skips, hits, ts, skip_prims);
       else
-        ctx.tracer.intersect(rays, hits, ts);
+        ctx.tracer.intersect(r, hits, ts);
     };
     if (ctx.want_cost) {
       // Per-ray queries so the node visits can be charged to their pixel.
       s.hits.assign(n, Hit{});
       for (size_t i = 0; i < n; ++i) {
         TraceStats ts;
-        trace(std::span<const Ray>(&s.rays[i], 1), skip.empty() ? skip : skip.subspan(i, 1),
+        trace(rays.subspan(i, 1), skip.empty() ? skip : skip.subspan(i, 1),
               skip_prim.empty() ? skip_prim : skip_prim.subspan(i, 1),
               std::span<Hit>(&s.hits[i], 1), &ts);
-        s.cost[s.paths[i].pixel] += ts.nodes_visited;
+        s.cost[paths[i].pixel] += ts.nodes_visited;
       }
     } else {
       // (The primary wavefront has one history: nothing to order. Voxel tracers group their
       // batches by direction octant themselves, which is the same grouping here.)
       bool reorder = false;
-      if (ctx.group_rays && !s.paths.front().primary()) {
+      if (ctx.group_rays && !paths.front().primary()) {
         s.key.resize(n);
-        for (size_t i = 0; i < n; ++i) s.key[i] = s.paths[i].history;
+        for (size_t i = 0; i < n; ++i) s.key[i] = paths[i].history;
         reorder = s.trace_order.build(s.key);
       }
       if (reorder) {  // coherent rays side by side (TraceOrder; never for voxels: no skips)
-        s.trace_order.trace_in_order(s.rays, s.sorted_rays, s.sorted_hits, s.hits,
+        s.hits.resize(n);
+        s.trace_order.trace_in_order(rays, s.sorted_rays, s.sorted_hits, std::span<Hit>(s.hits),
                                      [&](std::span<const Ray> r, std::span<Hit> h) { trace(r, {}, {}, h, nullptr); });
       } else {
         s.hits.assign(n, Hit{});
-        trace(s.rays, skip, skip_prim, s.hits, nullptr);
+        trace(rays, skip, skip_prim, s.hits, nullptr);
       }
     }
 
-    s.next_rays.clear();
-    s.next_paths.clear();
-    s.shadow_rays.clear();
-    s.shadow_contrib.clear();
-    s.shadow_pixel.clear();
-    s.shadow_key.clear();
+    // Room for everything shading can emit: two rays and shadow_per_hit shadow rays per hit.
+    ensure_size(s.next_rays, 2 * n);
+    ensure_size(s.next_paths, 2 * n);
+    s.n_next = 0;
+    if (ctx.shadows) {
+      const size_t most = n * ctx.shadow_per_hit;
+      ensure_size(s.shadow_rays, most);
+      ensure_size(s.shadow_req, most);
+      if (ctx.group_rays) ensure_size(s.shadow_key, most);
+    }
+    s.n_shadow = 0;
     for (size_t i = 0; i < n; ++i) {
-      const Ray& ray = s.rays[i];
-      const PathState& seg = s.paths[i];
+      const Ray& ray = rays[i];
+      const PathState& seg = paths[i];
       const Hit& hit = s.hits[i];
       const bool valid = ctx.valid(hit);
       Vec3 weight = seg.weight;
@@ -657,7 +709,7 @@ void render_tile(const Context& ctx, const SkyEval& sky, Scratch& s, const Pinho
         continue;
       }
       if (max_component(weight) <= 0.0f) continue;
-      const Surface sf = ctx.voxels ? voxel_surface(ctx, ray, hit, s.voxel_material) : triangle_surface(ctx, hit);
+      const Surface sf = ctx.voxels ? voxel_surface(ctx, s, ray, hit) : triangle_surface(ctx, hit);
       shade_hit(ctx, s, ray, seg, weight, sf, ctx.voxels ? hit.prim : kNoHit);
       if (seg.primary() && ctx.want_normal) {
         Vec3 nrm = sf.ns != Vec3{} ? sf.ns : sf.ng;
@@ -666,28 +718,30 @@ void render_tile(const Context& ctx, const SkyEval& sky, Scratch& s, const Pinho
       }
     }
 
-    const size_t ns = s.shadow_rays.size();
+    const size_t ns = s.n_shadow;
     if (ns > 0) {
+      const std::span<const Ray> shadow_rays(s.shadow_rays.data(), ns);
       s.shadow_t.assign(ns, Vec3{});
       if (ctx.want_cost) {
         for (size_t i = 0; i < ns; ++i) {
           TraceStats ts;
-          ctx.tracer.transmittance(std::span<const Ray>(&s.shadow_rays[i], 1),
-                                   std::span<Vec3>(&s.shadow_t[i], 1), &ts);
-          s.cost[s.shadow_pixel[i]] += ts.nodes_visited;
+          ctx.tracer.transmittance(shadow_rays.subspan(i, 1), std::span<Vec3>(&s.shadow_t[i], 1), &ts);
+          s.cost[s.shadow_req[i].pixel] += ts.nodes_visited;
         }
-      } else if (ctx.group_rays && s.trace_order.build(s.shadow_key)) {  // coherent rays side by side (TraceOrder)
-        s.trace_order.trace_in_order(s.shadow_rays, s.sorted_rays, s.sorted_t, s.shadow_t,
+      } else if (ctx.group_rays && s.trace_order.build(std::span<const uint32_t>(s.shadow_key.data(), ns))) {
+        // coherent rays side by side (TraceOrder)
+        s.trace_order.trace_in_order(shadow_rays, s.sorted_rays, s.sorted_t, std::span<Vec3>(s.shadow_t),
                                      [&](std::span<const Ray> r, std::span<Vec3> t) { ctx.tracer.transmittance(r, t); });
       } else {
-        ctx.tracer.transmittance(s.shadow_rays, s.shadow_t);
+        ctx.tracer.transmittance(shadow_rays, s.shadow_t);
       }
-      for (size_t i = 0; i < ns; ++i) s.accum[s.shadow_pixel[i]] += s.shadow_contrib[i] * s.shadow_t[i];
+      for (size_t i = 0; i < ns; ++i) s.accum[s.shadow_req[i].pixel] += s.shadow_req[i].contrib * s.shadow_t[i];
       counters.shadow += ns;
     }
-    counters.secondary += s.next_rays.size();
+    counters.secondary += s.n_next;
     std::swap(s.rays, s.next_rays);
     std::swap(s.paths, s.next_paths);
+    s.n_rays = s.n_next;
   }
 
   for (int y = y0; y < y1; ++y)
@@ -797,6 +851,7 @@ Film render_whitted(const Scene& scene, const Tracer& tracer, const RenderOption
     }
     ctx.lights.push_back(std::move(ls));
   }
+  for (const LightSetup& ls : ctx.lights) ctx.shadow_per_hit += ls.rr.empty() ? 1 : ls.rr.size();
 
   const SkyEval sky(scene.sky);
   const PinholeCamera camera(cam, w, h);
