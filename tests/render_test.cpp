@@ -391,9 +391,14 @@ TEST(Render, BitIdenticalWhicheverBvhKernelTraced) {
 
 TEST(Render, GroupingCoherentRaysLeavesTheImageBitIdentical) {
   // The pool's wavefronts mix mirror and refraction rays and its shadow batches two lights; the
-  // BVH traces them in packets when grouped. Shading order is untouched, so the films match.
-  // The third scene has more lights than TraceOrder has groups (the last group takes the rest).
+  // BVH traces them in packets when grouped. Grouped, wavefronts are built in history order
+  // (each pixel's own segments keep their order) when a path cannot bounce 15 times, else traced
+  // through TraceOrder (the 8 + 8 bounce limits below); either way the films match the ones
+  // built in emission order. The third scene has more lights than TraceOrder has groups (the
+  // last group takes the rest).
+  for (const int limit : {0, 8})
   for (const char* name : {"pool", "glassbox", "glassbox+40 lights"}) {
+    SCOPED_TRACE(limit == 0 ? "default bounce limits" : "8 mirror + 8 refraction bounces");
     Scene s = make_builtin_scene(std::string(name).substr(0, std::string(name).find('+')));
     if (std::string(name).find('+') != std::string::npos)
       for (int i = 0; i < 40; ++i)
@@ -403,6 +408,7 @@ TEST(Render, GroupingCoherentRaysLeavesTheImageBitIdentical) {
     o.width = 96;
     o.height = 72;
     o.threads = 2;
+    if (limit > 0) o.max_reflect = o.max_refract = limit;
     const Film grouped = render_whitted(s, *tracer, o);
     o.group_coherent_rays = false;
     RenderStats st;

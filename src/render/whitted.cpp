@@ -223,6 +223,9 @@ struct Scratch {
   std::vector<Ray> rays, next_rays;  ///< the wavefront being traced and the one being built
   std::vector<PathState> paths, next_paths;
   size_t n_rays = 0, n_next = 0;
+  std::vector<Ray> refr_rays;  ///< history order: the refraction rays of the run being shaded
+  std::vector<PathState> refr_paths;
+  size_t n_refr = 0;
   std::vector<Hit> hits;
   std::vector<Ray> shadow_rays;
   std::vector<ShadowRequest> shadow_req;
@@ -318,6 +321,14 @@ struct Context {
   const VoxelTracer* voxels = nullptr;
   bool shadows = true;  ///< false: light contributions are added without a shadow ray
   bool group_rays = true;  ///< trace batches in TraceOrder (RenderOptions::group_coherent_rays)
+  /// Wavefronts are built in history order, every history one contiguous run, so they are traced
+  /// as they are, without a TraceOrder pass. Shading a run of one history h emits its mirror rays
+  /// (history 2h) in order, then its refraction rays (2h + 1): the next wavefront is in history
+  /// order again. A pixel has at most one segment of each history (a history is its path's whole
+  /// bounce sequence) as long as no history saturates, so a pixel's own segments keep their
+  /// order, and with them every addition to its colour: the film is the same bit for bit as in
+  /// emission order. On when group_rays and a path cannot bounce 15 times (else TraceOrder).
+  bool history_order = false;
   bool vertex_normals = false;  ///< the scene has one normal per vertex
   std::vector<ShadeMaterial> shade{};///< per scene material, then the fallback material
   std::vector<uint8_t> absorbing{};  ///< per scene material: some absorption coefficient > 0
@@ -568,11 +579,15 @@ void shade_hit(const Context& ctx, Scratch& s, const Ray& ray, const PathState& 
   if (refr_w > 0.0f && seg.refract_depth < ctx.max_refract) {
     const Vec3 w = weight * refr_w;
     if (max_component(w) >= kMinWeight) {
-      const size_t k = s.n_next++;
-      s.next_rays[k] = Ray{offset_ray_origin(p, -ng_f), 0.0f, refr_dir, kInf};
-      s.next_paths[k] = PathState{w, seg.pixel, seg.global, seg.reflect_depth,
-                                  static_cast<uint8_t>(seg.refract_depth + 1), next_history(seg.history, 1),
-                                  refr_media, leave};
+      // In history order (Context::history_order) a run's refraction rays wait in refr_* until
+      // the run is shaded, then follow its mirror rays.
+      std::vector<Ray>& rays = ctx.history_order ? s.refr_rays : s.next_rays;
+      std::vector<PathState>& paths = ctx.history_order ? s.refr_paths : s.next_paths;
+      const size_t k = ctx.history_order ? s.n_refr++ : s.n_next++;
+      rays[k] = Ray{offset_ray_origin(p, -ng_f), 0.0f, refr_dir, kInf};
+      paths[k] = PathState{w, seg.pixel, seg.global, seg.reflect_depth,
+                           static_cast<uint8_t>(seg.refract_depth + 1), next_history(seg.history, 1), refr_media,
+                           leave};
     }
   }
 }
@@ -664,7 +679,7 @@ void render_tile(const Context& ctx, const SkyEval& sky, Scratch& s, const Pinho
       // (The primary wavefront has one history: nothing to order. Voxel tracers group their
       // batches by direction octant themselves, which is the same grouping here.)
       bool reorder = false;
-      if (ctx.group_rays && !paths.front().primary()) {
+      if (ctx.group_rays && !ctx.history_order && !paths.front().primary()) {
         s.key.resize(n);
         for (size_t i = 0; i < n; ++i) s.key[i] = paths[i].history;
         reorder = s.trace_order.build(s.key);
@@ -690,9 +705,26 @@ void render_tile(const Context& ctx, const SkyEval& sky, Scratch& s, const Pinho
       if (ctx.group_rays) ensure_size(s.shadow_key, most);
     }
     s.n_shadow = 0;
+    if (ctx.history_order) {
+      ensure_size(s.refr_rays, n);
+      ensure_size(s.refr_paths, n);
+    }
+    s.n_refr = 0;
+    // History order: a run's refraction rays follow its mirror rays.
+    const auto flush_refractions = [&] {
+      std::copy_n(s.refr_rays.begin(), s.n_refr, s.next_rays.begin() + static_cast<ptrdiff_t>(s.n_next));
+      std::copy_n(s.refr_paths.begin(), s.n_refr, s.next_paths.begin() + static_cast<ptrdiff_t>(s.n_next));
+      s.n_next += s.n_refr;
+      s.n_refr = 0;
+    };
+    uint16_t run = paths.front().history;
     for (size_t i = 0; i < n; ++i) {
       const Ray& ray = rays[i];
       const PathState& seg = paths[i];
+      if (seg.history != run) {
+        if (s.n_refr != 0) flush_refractions();
+        run = seg.history;
+      }
       const Hit& hit = s.hits[i];
       const bool valid = ctx.valid(hit);
       Vec3 weight = seg.weight;
@@ -717,6 +749,8 @@ void render_tile(const Context& ctx, const SkyEval& sky, Scratch& s, const Pinho
         ctx.film.normal[gp] = nrm;
       }
     }
+
+    if (s.n_refr != 0) flush_refractions();
 
     const size_t ns = s.n_shadow;
     if (ns > 0) {
@@ -819,6 +853,7 @@ Film render_whitted(const Scene& scene, const Tracer& tracer, const RenderOption
   // Voxel tracers group their batches by direction octant themselves, which for Whitted's
   // wavefronts is the same grouping: no second pass over the rays for them.
   ctx.group_rays = options.group_coherent_rays && ctx.voxels == nullptr;
+  ctx.history_order = ctx.group_rays && ctx.max_reflect + ctx.max_refract < 15;
   ctx.vertex_normals = scene.normals.size() == scene.positions.size();
   // Per-render constants of the shading: materials (the fallback last) and lights.
   ctx.shade.reserve(scene.materials.size() + 1);
