@@ -207,6 +207,7 @@ struct ShadeMaterial {
 struct ShadowRequest {
   Vec3 contrib;
   uint32_t pixel;  ///< index inside the tile
+  uint32_t slot;   ///< where its ray (and transmittance) sits in the traced batch
 };
 
 /// Grows \p v to at least \p n entries (never shrinks: the vectors below are storage sized to the
@@ -237,6 +238,9 @@ struct Scratch {
   std::vector<uint32_t> skip;  ///< per ray: material of the voxel medium it is in (kNoHit: none)
   std::vector<uint32_t> skip_prim;  ///< per ray: the voxel it leaves (PathState::leave)
   std::vector<uint32_t> shadow_key;  ///< per shadow ray: coherence key (history, light)
+  /// History order: per light, the next free slot of its region of the shadow batch (light L's
+  /// region starts at n * Context::light_first_sample[L] for a wavefront of n rays).
+  std::vector<size_t> light_cursor;
   std::vector<uint32_t> key;         ///< per wavefront ray: coherence key (history)
   TraceOrder trace_order;
   std::vector<Ray> sorted_rays;      ///< a batch in trace order
@@ -334,6 +338,7 @@ struct Context {
   std::vector<uint8_t> absorbing{};  ///< per scene material: some absorption coefficient > 0
   std::vector<LightSetup> lights{};  ///< lights that can contribute (power > 0)
   size_t shadow_per_hit = 0;          ///< most shadow rays one hit shoots (one per light sample)
+  std::vector<size_t> light_first_sample{};  ///< per light: samples of the lights before it
 
   /// Whether a hit record refers to something this context can shade.
   bool valid(const Hit& hit) const {
@@ -409,16 +414,18 @@ SPECULA_OPAQUE float sample_rotation(uint32_t global_pixel) {
     c = weight * f * irradiance;
     return max_component(c) > 0.0f;
   };
-  // The shadow ray's coherence key: the path's history and the light.
-  // Written by index: render_tile sized the batch for shadow_per_hit rays per hit.
+  // Written by index: render_tile sized the batch for shadow_per_hit rays per hit. In history
+  // order each light's rays go to a region of their own, in shading order, so the batch is one
+  // run per (light, history) without a TraceOrder pass; else the rays sit in request order and,
+  // grouped, carry their coherence key (the path's history and the light) for TraceOrder.
   const auto add = [&](const Vec3& c, const Ray& shadow, const LightSetup& light) {
     const size_t k = s.n_shadow++;
-    s.shadow_rays[k] = shadow;
-    s.shadow_req[k] = ShadowRequest{c, pixel};
-    if (ctx.group_rays) {  // only read where batches are grouped
-      const auto index = static_cast<uint32_t>(std::min<ptrdiff_t>(&light - ctx.lights.data(), 255));
-      s.shadow_key[k] = (uint32_t{history} << 8) | index;
-    }
+    const auto index = static_cast<size_t>(&light - ctx.lights.data());
+    const size_t slot = ctx.history_order ? s.light_cursor[index]++ : k;
+    s.shadow_rays[slot] = shadow;
+    s.shadow_req[k] = ShadowRequest{c, pixel, static_cast<uint32_t>(slot)};
+    if (ctx.group_rays && !ctx.history_order)  // only read where TraceOrder groups the batch
+      s.shadow_key[k] = (uint32_t{history} << 8) | static_cast<uint32_t>(std::min<size_t>(index, 255));
   };
 
   for (const LightSetup& light : ctx.lights) {
@@ -702,7 +709,11 @@ void render_tile(const Context& ctx, const SkyEval& sky, Scratch& s, const Pinho
       const size_t most = n * ctx.shadow_per_hit;
       ensure_size(s.shadow_rays, most);
       ensure_size(s.shadow_req, most);
-      if (ctx.group_rays) ensure_size(s.shadow_key, most);
+      if (ctx.group_rays && !ctx.history_order) ensure_size(s.shadow_key, most);
+      if (ctx.history_order) {
+        s.light_cursor.resize(ctx.lights.size());
+        for (size_t l = 0; l < ctx.lights.size(); ++l) s.light_cursor[l] = n * ctx.light_first_sample[l];
+      }
     }
     s.n_shadow = 0;
     if (ctx.history_order) {
@@ -753,7 +764,30 @@ void render_tile(const Context& ctx, const SkyEval& sky, Scratch& s, const Pinho
     if (s.n_refr != 0) flush_refractions();
 
     const size_t ns = s.n_shadow;
-    if (ns > 0) {
+    if (ns > 0 && ctx.history_order) {
+      // One region per light, each in shading order: (light, history) runs side by side.
+      ensure_size(s.shadow_t, n * ctx.shadow_per_hit);
+      if (ctx.want_cost) {
+        for (size_t i = 0; i < ns; ++i) {
+          TraceStats ts;
+          const size_t slot = s.shadow_req[i].slot;
+          ctx.tracer.transmittance(std::span<const Ray>(&s.shadow_rays[slot], 1), std::span<Vec3>(&s.shadow_t[slot], 1),
+                                   &ts);
+          s.cost[s.shadow_req[i].pixel] += ts.nodes_visited;
+        }
+      } else {
+        for (size_t l = 0; l < ctx.lights.size(); ++l) {
+          const size_t first = n * ctx.light_first_sample[l], count = s.light_cursor[l] - first;
+          if (count == 0) continue;
+          const std::span<Vec3> t(s.shadow_t.data() + first, count);
+          std::fill(t.begin(), t.end(), Vec3{});
+          ctx.tracer.transmittance(std::span<const Ray>(s.shadow_rays.data() + first, count), t);
+        }
+      }
+      for (size_t i = 0; i < ns; ++i)
+        s.accum[s.shadow_req[i].pixel] += s.shadow_req[i].contrib * s.shadow_t[s.shadow_req[i].slot];
+      counters.shadow += ns;
+    } else if (ns > 0) {
       const std::span<const Ray> shadow_rays(s.shadow_rays.data(), ns);
       s.shadow_t.assign(ns, Vec3{});
       if (ctx.want_cost) {
@@ -886,7 +920,10 @@ Film render_whitted(const Scene& scene, const Tracer& tracer, const RenderOption
     }
     ctx.lights.push_back(std::move(ls));
   }
-  for (const LightSetup& ls : ctx.lights) ctx.shadow_per_hit += ls.rr.empty() ? 1 : ls.rr.size();
+  for (const LightSetup& ls : ctx.lights) {
+    ctx.light_first_sample.push_back(ctx.shadow_per_hit);
+    ctx.shadow_per_hit += ls.rr.empty() ? 1 : ls.rr.size();
+  }
 
   const SkyEval sky(scene.sky);
   const PinholeCamera camera(cam, w, h);
