@@ -17,6 +17,7 @@
 #include "specula/error.h"
 #include "specula/load.h"
 #include "specula/render.h"
+#include "specula/voxel_scene.h"
 
 using namespace specula;
 
@@ -627,4 +628,38 @@ TEST(Render, EveryLightSampleOfAHitGetsItsShadowRay) {
     EXPECT_EQ(std::memcmp(a.color.data(), b.color.data(), a.color.size() * sizeof(Vec3)), 0) << "tile " << tile;
     EXPECT_GT(a.color[a.color.size() / 2].x, 0.0f);
   }
+}
+
+TEST(Render, VoxelMaterialsReusedAcrossHitsLeaveTheImageBitIdentical) {
+  // The integrator keeps the shading material of the last voxel it shaded and reuses it while
+  // hits stay on that voxel (it is reset per tile). One-pixel tiles share nothing across pixels;
+  // 16 and 7 pixel tiles reuse it along runs of hits. Coarse depths (big voxels, many pixels on
+  // one) and a finer one, cubes and contours, with and without shadow rays.
+  LoadOptions lo;
+  lo.warn = [](const std::string&) {};
+  const Scene scene = make_builtin_scene("glassbox", lo);
+  for (const int depth : {3, 5})
+    for (const auto mode : {VoxelHitMode::Cubes, VoxelHitMode::Contours}) {
+      SceneVoxelOptions vo;
+      vo.depth = depth;
+      vo.tracer.mode = mode;
+      const auto svo = voxelize_scene(scene, vo);
+      for (const bool shadows : {true, false}) {
+        SCOPED_TRACE("depth " + std::to_string(depth) + (mode == VoxelHitMode::Cubes ? " cubes" : " contours") +
+                     (shadows ? "" : " no shadows"));
+        RenderOptions o;
+        o.width = 40;
+        o.height = 30;
+        o.threads = 2;
+        o.shadows = shadows;
+        o.tile_size = 1;
+        const Film a = render_whitted(scene, *svo, o);
+        for (const int tile : {16, 7}) {
+          o.tile_size = tile;
+          const Film b = render_whitted(scene, *svo, o);
+          ASSERT_EQ(a.color.size(), b.color.size());
+          EXPECT_EQ(std::memcmp(a.color.data(), b.color.data(), a.color.size() * sizeof(Vec3)), 0) << "tile " << tile;
+        }
+      }
+    }
 }

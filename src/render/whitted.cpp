@@ -249,6 +249,8 @@ struct Scratch {
   ShadeMaterial voxel_material;  ///< the material of the voxel hit being shaded
   /// Index into Context::shade whose constant fields voxel_material holds (SIZE_MAX: none yet).
   size_t voxel_material_index = SIZE_MAX;
+  uint32_t voxel_prim = kNoHit;  ///< the voxel whose material voxel_material holds (kNoHit: none)
+  uint32_t voxel_material_id = 0;  ///< its VoxelAttributes::material
 };
 
 
@@ -501,25 +503,31 @@ Surface triangle_surface(const Context& ctx, const Hit& hit) {
 /// the normal the tracer reports (cube face or contour plane). Scratch::voxel_material holds the
 /// material.
 Surface voxel_surface(const Context& ctx, Scratch& s, const Ray& ray, const Hit& hit) {
-  const VoxelAttributes& a = ctx.voxels->attributes(hit.prim);
   ShadeMaterial& storage = s.voxel_material;
-  const size_t index = ctx.shade_index(a.material);
-  const ShadeMaterial& base = ctx.shade[index];
-  // The material's own fields (specular, exponent, emission) are copied only when the material
-  // changes from the previous voxel hit: finish_shade_material rewrites every per-hit field.
-  if (index != s.voxel_material_index) {
-    storage = base;
-    s.voxel_material_index = index;
+  // The material depends on the voxel only: a hit on the voxel the previous voxel hit shaded
+  // (neighbouring pixels on one coarse voxel; every pixel when the camera sits in one) reuses it.
+  if (hit.prim != s.voxel_prim) {
+    const VoxelAttributes& a = ctx.voxels->attributes(hit.prim);
+    const size_t index = ctx.shade_index(a.material);
+    const ShadeMaterial& base = ctx.shade[index];
+    // The material's own fields (specular, exponent, emission) are copied only when the material
+    // changes from the previous voxel hit: finish_shade_material rewrites every per-hit field.
+    if (index != s.voxel_material_index) {
+      storage = base;
+      s.voxel_material_index = index;
+    }
+    finish_shade_material(storage, a.colour, a.reflectivity, a.transparency, a.transparency > 0.0f ? a.ior : base.ior,
+                          ctx.scene.ambient);
+    s.voxel_prim = hit.prim;
+    s.voxel_material_id = a.material;
   }
-  finish_shade_material(storage, a.colour, a.reflectivity, a.transparency, a.transparency > 0.0f ? a.ior : base.ior,
-                        ctx.scene.ambient);
   Surface sf;
   sf.p = ray.org + ray.dir * hit.t;
   sf.ng = hit.ng;
   if (!(dot(sf.ng, sf.ng) > 0.0f) || !is_finite(sf.ng)) sf.ng = -normalize(ray.dir);
   sf.ns = Vec3{};
   sf.m = &storage;
-  sf.material_id = a.material;
+  sf.material_id = s.voxel_material_id;
   return sf;
 }
 
@@ -644,6 +652,7 @@ void render_tile(const Context& ctx, const SkyEval& sky, Scratch& s, const Pinho
   }
   counters.primary += npix;
   s.voxel_material_index = SIZE_MAX;
+  s.voxel_prim = kNoHit;
 
   while (s.n_rays != 0) {
     const size_t n = s.n_rays;
@@ -861,8 +870,11 @@ Film render_whitted(const Scene& scene, const Tracer& tracer, const RenderOption
     cam = scene.cameras[*idx];
   }
   if (scene.indices.size() % 3 != 0) throw Error("render: scene index count is not a multiple of 3");
-  for (uint32_t i : scene.indices)
-    if (i >= scene.positions.size()) throw Error("render: scene has a vertex index out of range");
+  // (A branch-free maximum, which the compiler vectorises: this runs for every frame.)
+  uint32_t max_index = 0;
+  for (uint32_t i : scene.indices) max_index = std::max(max_index, i);
+  if (!scene.indices.empty() && max_index >= scene.positions.size())
+    throw Error("render: scene has a vertex index out of range");
 
   Film film;
   film.width = w;
