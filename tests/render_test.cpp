@@ -13,6 +13,8 @@
 #include <vector>
 
 #include "accel_test_util.h"
+#include "render/fresnel.h"
+#include "render/sky.h"
 #include "specula/accel.h"
 #include "specula/error.h"
 #include "specula/load.h"
@@ -662,4 +664,40 @@ TEST(Render, VoxelMaterialsReusedAcrossHitsLeaveTheImageBitIdentical) {
         }
       }
     }
+}
+
+TEST(Render, SkyAndFresnelFastPathsMatchTheirFormulasBitForBit) {
+  // The constant and gradient skies are answered inline (SkyEval::radiance), images out of line;
+  // fresnel_dielectric and refract are inline bodies (render/fresnel.h) behind the public calls.
+  Sky sky;
+  sky.color = {0.3f, 0.5f, 0.9f};
+  sky.horizon = {0.8f, 0.85f, 0.95f};
+  sky.intensity = 1.7f;
+  const std::vector<Vec3> dirs{{0, 1, 0}, {0.3f, 0.2f, -0.9f}, {1, -0.5f, 0}, {0, 0, 0}, {-2, 7, 0.5f}, {0.1f, 0, 1}};
+  for (const SkyType type : {SkyType::Constant, SkyType::Gradient, SkyType::Image}) {
+    sky.type = type;
+    const SkyEval eval(sky);
+    for (const Vec3& d : dirs) {
+      Vec3 want = sky.color * sky.intensity;  // constant; also an image sky without an image
+      if (type == SkyType::Gradient)
+        want = lerp(sky.horizon, sky.color, std::sqrt(std::clamp(normalize(d).y, 0.0f, 1.0f))) * sky.intensity;
+      const Vec3 got = eval.radiance(d);
+      EXPECT_EQ(std::memcmp(&got, &want, sizeof(Vec3)), 0) << static_cast<int>(type) << " " << d.x << " " << d.y;
+    }
+  }
+  for (float c = 0.0f; c <= 1.0f; c += 0.0625f)
+    for (const float eta : {1.0f, 1.0f / 1.33f, 1.33f, 1.5f, 1.0f / 1.5f}) {
+      const float a = fresnel_dielectric(c, eta), b = detail::fresnel_dielectric(c, eta);
+      EXPECT_EQ(std::memcmp(&a, &b, sizeof a), 0);
+      const Vec3 d = normalize(Vec3{std::sqrt(std::max(0.0f, 1.0f - c * c)), -c, 0.1f});
+      Vec3 r1, r2;
+      const bool k1 = refract(d, {0, 1, 0}, eta, r1), k2 = detail::refract(d, {0, 1, 0}, eta, r2);
+      EXPECT_EQ(k1, k2);
+      if (k1 && k2) {
+        EXPECT_EQ(std::memcmp(&r1, &r2, sizeof(Vec3)), 0);
+      }
+    }
+  // Total internal reflection and a known value (normal incidence, glass: 4%).
+  EXPECT_EQ(detail::fresnel_dielectric(0.1f, 1.5f), 1.0f);
+  EXPECT_NEAR(detail::fresnel_dielectric(1.0f, 1.0f / 1.5f), 0.04f, 1e-6f);
 }

@@ -28,6 +28,7 @@
 #include <string>
 
 #include "core/hash.h"
+#include "render/fresnel.h"
 #include "render/phong.h"
 #include "render/sky.h"
 #include "specula/error.h"
@@ -569,11 +570,11 @@ void shade_hit(const Context& ctx, Scratch& s, const Ray& ray, const PathState& 
       n2 = ctx.medium_ior(refr_media.top());
     }
     const float eta = n1 / n2;
-    float fr = fresnel_dielectric(-dot(d, ns_f), eta);
-    bool ok = fr < 1.0f && refract(d, ns_f, eta, refr_dir) && dot(refr_dir, ng_f) < 0.0f;
+    float fr = detail::fresnel_dielectric(-dot(d, ns_f), eta);
+    bool ok = fr < 1.0f && detail::refract(d, ns_f, eta, refr_dir) && dot(refr_dir, ng_f) < 0.0f;
     if (!ok && fr < 1.0f) {  // the shading normal bent the ray back: use the geometric one
-      fr = fresnel_dielectric(-dot(d, ng_f), eta);
-      ok = fr < 1.0f && refract(d, ng_f, eta, refr_dir) && dot(refr_dir, ng_f) < 0.0f;
+      fr = detail::fresnel_dielectric(-dot(d, ng_f), eta);
+      ok = fr < 1.0f && detail::refract(d, ng_f, eta, refr_dir) && dot(refr_dir, ng_f) < 0.0f;
     }
     if (!ok) fr = 1.0f;  // total internal reflection
     refl_w += trans * fr;
