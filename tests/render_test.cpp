@@ -13,10 +13,13 @@
 #include <vector>
 
 #include "accel_test_util.h"
+#include "render/fresnel.h"
+#include "render/sky.h"
 #include "specula/accel.h"
 #include "specula/error.h"
 #include "specula/load.h"
 #include "specula/render.h"
+#include "specula/voxel_scene.h"
 
 using namespace specula;
 
@@ -391,9 +394,14 @@ TEST(Render, BitIdenticalWhicheverBvhKernelTraced) {
 
 TEST(Render, GroupingCoherentRaysLeavesTheImageBitIdentical) {
   // The pool's wavefronts mix mirror and refraction rays and its shadow batches two lights; the
-  // BVH traces them in packets when grouped. Shading order is untouched, so the films match.
-  // The third scene has more lights than TraceOrder has groups (the last group takes the rest).
+  // BVH traces them in packets when grouped. Grouped, wavefronts are built in history order
+  // (each pixel's own segments keep their order) when a path cannot bounce 15 times, else traced
+  // through TraceOrder (the 8 + 8 bounce limits below); either way the films match the ones
+  // built in emission order. The third scene has more lights than TraceOrder has groups (the
+  // last group takes the rest).
+  for (const int limit : {0, 8})
   for (const char* name : {"pool", "glassbox", "glassbox+40 lights"}) {
+    SCOPED_TRACE(limit == 0 ? "default bounce limits" : "8 mirror + 8 refraction bounces");
     Scene s = make_builtin_scene(std::string(name).substr(0, std::string(name).find('+')));
     if (std::string(name).find('+') != std::string::npos)
       for (int i = 0; i < 40; ++i)
@@ -403,6 +411,7 @@ TEST(Render, GroupingCoherentRaysLeavesTheImageBitIdentical) {
     o.width = 96;
     o.height = 72;
     o.threads = 2;
+    if (limit > 0) o.max_reflect = o.max_refract = limit;
     const Film grouped = render_whitted(s, *tracer, o);
     o.group_coherent_rays = false;
     RenderStats st;
@@ -580,4 +589,115 @@ TEST(Render, RaysLeavingASurfaceDoNotHitItAgain) {
     const Film f = render_whitted(s, *tracer, small());
     for (const Vec3& px : f.color) expect_vec_near(px, s.sky.color, 1e-6f, "offset " + std::to_string(offset));
   }
+}
+
+TEST(Render, EveryLightSampleOfAHitGetsItsShadowRay) {
+  // Every pixel sees one unoccluded diffuse plane lit by a directional light, a point light, a
+  // 16-sample sphere light and a zero-radius sphere light: each hit shoots 1 + 1 + 16 + 1 shadow
+  // rays (the most the integrator sizes its shadow batch for), all of them transmit exactly 1,
+  // so the film equals the one rendered without shadow rays bit for bit (same additions in the
+  // same order per pixel).
+  Scene s = base_scene();
+  add_quad(s, "plane", {0, 0, 0}, {0, 0, 50}, {50, 0, 0}, s.add_material(diffuse(Vec3{0.5f})));
+  Light sun;
+  sun.type = LightType::Directional;
+  sun.direction = normalize(Vec3{0.2f, -1.0f, 0.1f});
+  sun.intensity = 0.5f;
+  s.lights.push_back(sun);
+  s.lights.push_back(point_light({0.5f, 2, 0}, 2.0f));
+  Light sphere = point_light({-0.5f, 3, 0.2f}, 3.0f);
+  sphere.type = LightType::Sphere;
+  sphere.radius = 0.1f;
+  sphere.samples = 16;
+  s.lights.push_back(sphere);
+  sphere.radius = 0.0f;
+  sphere.position = {0, 2.5f, -0.3f};
+  s.lights.push_back(sphere);
+  s.cameras.push_back(look({0, 3, 0.5f}, {0, 0, 0}));
+  const auto tracer = make_tracer(s);
+  for (const int tile : {16, 5}) {
+    RenderOptions o = small();
+    o.tile_size = tile;
+    RenderStats with, without;
+    const Film a = render_whitted(s, *tracer, o, &with);
+    o.shadows = false;
+    const Film b = render_whitted(s, *tracer, o, &without);
+    const uint64_t pixels = static_cast<uint64_t>(o.width) * static_cast<uint64_t>(o.height);
+    EXPECT_EQ(with.primary_rays, pixels);
+    EXPECT_EQ(with.shadow_rays, pixels * 19) << "tile " << tile;
+    EXPECT_EQ(without.shadow_rays, 0u);
+    ASSERT_EQ(a.color.size(), b.color.size());
+    EXPECT_EQ(std::memcmp(a.color.data(), b.color.data(), a.color.size() * sizeof(Vec3)), 0) << "tile " << tile;
+    EXPECT_GT(a.color[a.color.size() / 2].x, 0.0f);
+  }
+}
+
+TEST(Render, VoxelMaterialsReusedAcrossHitsLeaveTheImageBitIdentical) {
+  // The integrator keeps the shading material of the last voxel it shaded and reuses it while
+  // hits stay on that voxel (it is reset per tile). One-pixel tiles share nothing across pixels;
+  // 16 and 7 pixel tiles reuse it along runs of hits. Coarse depths (big voxels, many pixels on
+  // one) and a finer one, cubes and contours, with and without shadow rays.
+  LoadOptions lo;
+  lo.warn = [](const std::string&) {};
+  const Scene scene = make_builtin_scene("glassbox", lo);
+  for (const int depth : {3, 5})
+    for (const auto mode : {VoxelHitMode::Cubes, VoxelHitMode::Contours}) {
+      SceneVoxelOptions vo;
+      vo.depth = depth;
+      vo.tracer.mode = mode;
+      const auto svo = voxelize_scene(scene, vo);
+      for (const bool shadows : {true, false}) {
+        SCOPED_TRACE("depth " + std::to_string(depth) + (mode == VoxelHitMode::Cubes ? " cubes" : " contours") +
+                     (shadows ? "" : " no shadows"));
+        RenderOptions o;
+        o.width = 40;
+        o.height = 30;
+        o.threads = 2;
+        o.shadows = shadows;
+        o.tile_size = 1;
+        const Film a = render_whitted(scene, *svo, o);
+        for (const int tile : {16, 7}) {
+          o.tile_size = tile;
+          const Film b = render_whitted(scene, *svo, o);
+          ASSERT_EQ(a.color.size(), b.color.size());
+          EXPECT_EQ(std::memcmp(a.color.data(), b.color.data(), a.color.size() * sizeof(Vec3)), 0) << "tile " << tile;
+        }
+      }
+    }
+}
+
+TEST(Render, SkyAndFresnelFastPathsMatchTheirFormulasBitForBit) {
+  // The constant and gradient skies are answered inline (SkyEval::radiance), images out of line;
+  // fresnel_dielectric and refract are inline bodies (render/fresnel.h) behind the public calls.
+  Sky sky;
+  sky.color = {0.3f, 0.5f, 0.9f};
+  sky.horizon = {0.8f, 0.85f, 0.95f};
+  sky.intensity = 1.7f;
+  const std::vector<Vec3> dirs{{0, 1, 0}, {0.3f, 0.2f, -0.9f}, {1, -0.5f, 0}, {0, 0, 0}, {-2, 7, 0.5f}, {0.1f, 0, 1}};
+  for (const SkyType type : {SkyType::Constant, SkyType::Gradient, SkyType::Image}) {
+    sky.type = type;
+    const SkyEval eval(sky);
+    for (const Vec3& d : dirs) {
+      Vec3 want = sky.color * sky.intensity;  // constant; also an image sky without an image
+      if (type == SkyType::Gradient)
+        want = lerp(sky.horizon, sky.color, std::sqrt(std::clamp(normalize(d).y, 0.0f, 1.0f))) * sky.intensity;
+      const Vec3 got = eval.radiance(d);
+      EXPECT_EQ(std::memcmp(&got, &want, sizeof(Vec3)), 0) << static_cast<int>(type) << " " << d.x << " " << d.y;
+    }
+  }
+  for (float c = 0.0f; c <= 1.0f; c += 0.0625f)
+    for (const float eta : {1.0f, 1.0f / 1.33f, 1.33f, 1.5f, 1.0f / 1.5f}) {
+      const float a = fresnel_dielectric(c, eta), b = detail::fresnel_dielectric(c, eta);
+      EXPECT_EQ(std::memcmp(&a, &b, sizeof a), 0);
+      const Vec3 d = normalize(Vec3{std::sqrt(std::max(0.0f, 1.0f - c * c)), -c, 0.1f});
+      Vec3 r1, r2;
+      const bool k1 = refract(d, {0, 1, 0}, eta, r1), k2 = detail::refract(d, {0, 1, 0}, eta, r2);
+      EXPECT_EQ(k1, k2);
+      if (k1 && k2) {
+        EXPECT_EQ(std::memcmp(&r1, &r2, sizeof(Vec3)), 0);
+      }
+    }
+  // Total internal reflection and a known value (normal incidence, glass: 4%).
+  EXPECT_EQ(detail::fresnel_dielectric(0.1f, 1.5f), 1.0f);
+  EXPECT_NEAR(detail::fresnel_dielectric(1.0f, 1.0f / 1.5f), 0.04f, 1e-6f);
 }

@@ -64,7 +64,12 @@ class PinholeCamera {
   PinholeCamera(const Camera& cam, int width, int height);
   /// Ray through image position (px, py) in pixels, (0,0) = top-left corner; the direction
   /// is unit length, so hit distances are in scene units.
-  Ray generate(float px, float py) const;
+  Ray generate(float px, float py) const { return ray_from_column(column(px), py); }
+  /// The half of generate()'s direction sum that depends on the column only; the integrator
+  /// computes it once per column of a tile. ray_from_column(column(px), py) is generate(px, py)
+  /// bit for bit: the same sum, (top_left + du px) + dv py, in the same order.
+  Vec3 column(float px) const { return top_left_ + du_ * px; }
+  Ray ray_from_column(const Vec3& col, float py) const { return Ray{origin_, 0.0f, normalize(col + dv_ * py), kInf}; }
 
  private:
   Vec3 origin_, top_left_, du_, dv_;

@@ -24,15 +24,6 @@ PinholeCamera::PinholeCamera(const Camera& cam, int width, int height) {
   dv_ = v * (-2.0f * half_h / static_cast<float>(std::max(height, 1)));
 }
 
-Ray PinholeCamera::generate(float px, float py) const {
-  Ray r;
-  r.org = origin_;
-  r.dir = normalize(top_left_ + du_ * px + dv_ * py);
-  r.tmin = 0.0f;
-  r.tmax = kInf;
-  return r;
-}
-
 const char* aov_name(Aov aov) {
   switch (aov) {
     case Aov::Depth: return "depth";

@@ -1,4 +1,5 @@
-// Sky radiance: constant, vertical gradient, equirectangular image (owner: render).
+// Sky radiance: constant, vertical gradient (inline in sky.h), equirectangular image (owner:
+// render).
 #include "render/sky.h"
 
 #include <algorithm>
@@ -6,38 +7,27 @@
 
 namespace specula {
 
-Vec3 SkyEval::radiance(const Vec3& dir) const {
+Vec3 SkyEval::image_radiance(const Vec3& dir) const {
+  // radiance() answers the constant and gradient skies itself.
+  const int w = sky_.image_width, h = sky_.image_height;
+  if (sky_.type != SkyType::Image || w <= 0 || h <= 0 ||
+      sky_.image.size() < static_cast<size_t>(w) * static_cast<size_t>(h))
+    return sky_.color * sky_.intensity;  // image not loaded: behave like a constant sky
   const Vec3 d = normalize(dir);
-  switch (sky_.type) {
-    case SkyType::Constant:
-      return sky_.color * sky_.intensity;
-    case SkyType::Gradient: {
-      // Horizon colour at and below the horizon, blending to the zenith colour; the square
-      // root keeps a visible horizon band instead of a linear ramp.
-      const float t = std::sqrt(std::clamp(d.y, 0.0f, 1.0f));
-      return lerp(sky_.horizon, sky_.color, t) * sky_.intensity;
-    }
-    case SkyType::Image: {
-      const int w = sky_.image_width, h = sky_.image_height;
-      if (w <= 0 || h <= 0 || sky_.image.size() < static_cast<size_t>(w) * static_cast<size_t>(h))
-        return sky_.color * sky_.intensity;  // image not loaded: behave like a constant sky
-      const float u = 0.5f + std::atan2(d.x, -d.z) * (0.5f / kPi);
-      const float v = std::acos(std::clamp(d.y, -1.0f, 1.0f)) / kPi;
-      // Bilinear lookup, wrapping horizontally and clamping vertically.
-      const float fx = u * static_cast<float>(w) - 0.5f, fy = v * static_cast<float>(h) - 0.5f;
-      const float x0f = std::floor(fx), y0f = std::floor(fy);
-      const float ax = fx - x0f, ay = fy - y0f;
-      auto wrap_x = [w](long x) { return static_cast<size_t>(((x % w) + w) % w); };
-      auto clamp_y = [h](long y) { return static_cast<size_t>(std::clamp<long>(y, 0, h - 1)); };
-      const long xi = static_cast<long>(x0f), yi = static_cast<long>(y0f);
-      const size_t xa = wrap_x(xi), xb = wrap_x(xi + 1), ya = clamp_y(yi), yb = clamp_y(yi + 1);
-      const size_t sw = static_cast<size_t>(w);
-      const Vec3 top = lerp(sky_.image[ya * sw + xa], sky_.image[ya * sw + xb], ax);
-      const Vec3 bottom = lerp(sky_.image[yb * sw + xa], sky_.image[yb * sw + xb], ax);
-      return lerp(top, bottom, ay) * sky_.intensity;
-    }
-  }
-  return sky_.color * sky_.intensity;
+  const float u = 0.5f + std::atan2(d.x, -d.z) * (0.5f / kPi);
+  const float v = std::acos(std::clamp(d.y, -1.0f, 1.0f)) / kPi;
+  // Bilinear lookup, wrapping horizontally and clamping vertically.
+  const float fx = u * static_cast<float>(w) - 0.5f, fy = v * static_cast<float>(h) - 0.5f;
+  const float x0f = std::floor(fx), y0f = std::floor(fy);
+  const float ax = fx - x0f, ay = fy - y0f;
+  auto wrap_x = [w](long x) { return static_cast<size_t>(((x % w) + w) % w); };
+  auto clamp_y = [h](long y) { return static_cast<size_t>(std::clamp<long>(y, 0, h - 1)); };
+  const long xi = static_cast<long>(x0f), yi = static_cast<long>(y0f);
+  const size_t xa = wrap_x(xi), xb = wrap_x(xi + 1), ya = clamp_y(yi), yb = clamp_y(yi + 1);
+  const size_t sw = static_cast<size_t>(w);
+  const Vec3 top = lerp(sky_.image[ya * sw + xa], sky_.image[ya * sw + xb], ax);
+  const Vec3 bottom = lerp(sky_.image[yb * sw + xa], sky_.image[yb * sw + xb], ax);
+  return lerp(top, bottom, ay) * sky_.intensity;
 }
 
 }  // namespace specula

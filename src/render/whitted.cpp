@@ -28,6 +28,7 @@
 #include <string>
 
 #include "core/hash.h"
+#include "render/fresnel.h"
 #include "render/phong.h"
 #include "render/sky.h"
 #include "specula/error.h"
@@ -136,7 +137,7 @@ struct TraceOrder {
   uint32_t counts[kMaxGroups + 1] = {};
 
   /// Fills `order` from per-ray keys; false when it would be the identity (nothing to do).
-  bool build(const std::vector<uint32_t>& key) {
+  bool build(std::span<const uint32_t> key) {
     const size_t n = key.size();
     std::vector<uint8_t>& g = group_;
     g.resize(n);
@@ -168,14 +169,14 @@ struct TraceOrder {
   /// results) fills one result per ray, \p out receives them in the rays' own positions.
   /// \p sorted_rays and \p sorted_out are scratch.
   template <class Result, class Trace>
-  void trace_in_order(const std::vector<Ray>& rays, std::vector<Ray>& sorted_rays, std::vector<Result>& sorted_out,
-                      std::vector<Result>& out, Trace&& trace) const {
+  void trace_in_order(std::span<const Ray> rays, std::vector<Ray>& sorted_rays, std::vector<Result>& sorted_out,
+                      std::span<Result> out, Trace&& trace) const {
     const size_t n = order.size();
     sorted_rays.resize(n);
     sorted_out.assign(n, Result{});
     for (size_t j = 0; j < n; ++j) sorted_rays[j] = rays[order[j]];
     trace(std::span<const Ray>(sorted_rays), std::span<Result>(sorted_out));
-    out.resize(n);  // every entry written below: `order` is a permutation
+    // every entry of out[0, n) written below: `order` is a permutation
     for (size_t j = 0; j < n; ++j) out[order[j]] = sorted_out[j];
   }
 
@@ -203,24 +204,54 @@ struct ShadeMaterial {
   bool lit = false;  ///< whether a light can add anything (kd or the specular colour non-zero)
 };
 
+/// A shadow ray's payload: the radiance it brings to its pixel when unoccluded.
+struct ShadowRequest {
+  Vec3 contrib;
+  uint32_t pixel;  ///< index inside the tile
+  uint32_t slot;   ///< where its ray (and transmittance) sits in the traced batch
+};
+
+/// Grows \p v to at least \p n entries (never shrinks: the vectors below are storage sized to the
+/// largest batch so far, their live length is a count of its own).
+template <class T>
+void ensure_size(std::vector<T>& v, size_t n) {
+  if (v.size() < n) v.resize(n);
+}
+
+/// Per-thread storage of a tile's wavefronts. The wavefront arrays and the shadow batch are
+/// written by index up to a bound known before shading (2 rays and shadow_per_hit shadow rays per
+/// hit), not push_back'ed: the live lengths are n_rays, n_next and n_shadow.
 struct Scratch {
   std::vector<Ray> rays, next_rays;  ///< the wavefront being traced and the one being built
   std::vector<PathState> paths, next_paths;
+  size_t n_rays = 0, n_next = 0;
+  std::vector<Ray> refr_rays;  ///< history order: the refraction rays of the run being shaded
+  std::vector<PathState> refr_paths;
+  size_t n_refr = 0;
   std::vector<Hit> hits;
   std::vector<Ray> shadow_rays;
-  std::vector<Vec3> shadow_contrib, shadow_t;
-  std::vector<uint32_t> shadow_pixel;
+  std::vector<ShadowRequest> shadow_req;
+  std::vector<Vec3> shadow_t;
+  size_t n_shadow = 0;
   std::vector<Vec3> accum;
+  std::vector<Vec3> columns;  ///< per tile column: PinholeCamera::column of its pixel centre
   std::vector<uint64_t> cost;
   std::vector<uint32_t> skip;  ///< per ray: material of the voxel medium it is in (kNoHit: none)
   std::vector<uint32_t> skip_prim;  ///< per ray: the voxel it leaves (PathState::leave)
   std::vector<uint32_t> shadow_key;  ///< per shadow ray: coherence key (history, light)
+  /// History order: per light, the next free slot of its region of the shadow batch (light L's
+  /// region starts at n * Context::light_first_sample[L] for a wavefront of n rays).
+  std::vector<size_t> light_cursor;
   std::vector<uint32_t> key;         ///< per wavefront ray: coherence key (history)
   TraceOrder trace_order;
   std::vector<Ray> sorted_rays;      ///< a batch in trace order
   std::vector<Hit> sorted_hits;
   std::vector<Vec3> sorted_t;
   ShadeMaterial voxel_material;  ///< the material of the voxel hit being shaded
+  /// Index into Context::shade whose constant fields voxel_material holds (SIZE_MAX: none yet).
+  size_t voxel_material_index = SIZE_MAX;
+  uint32_t voxel_prim = kNoHit;  ///< the voxel whose material voxel_material holds (kNoHit: none)
+  uint32_t voxel_material_id = 0;  ///< its VoxelAttributes::material
 };
 
 
@@ -297,10 +328,20 @@ struct Context {
   const VoxelTracer* voxels = nullptr;
   bool shadows = true;  ///< false: light contributions are added without a shadow ray
   bool group_rays = true;  ///< trace batches in TraceOrder (RenderOptions::group_coherent_rays)
+  /// Wavefronts are built in history order, every history one contiguous run, so they are traced
+  /// as they are, without a TraceOrder pass. Shading a run of one history h emits its mirror rays
+  /// (history 2h) in order, then its refraction rays (2h + 1): the next wavefront is in history
+  /// order again. A pixel has at most one segment of each history (a history is its path's whole
+  /// bounce sequence) as long as no history saturates, so a pixel's own segments keep their
+  /// order, and with them every addition to its colour: the film is the same bit for bit as in
+  /// emission order. On when group_rays and a path cannot bounce 15 times (else TraceOrder).
+  bool history_order = false;
   bool vertex_normals = false;  ///< the scene has one normal per vertex
   std::vector<ShadeMaterial> shade{};///< per scene material, then the fallback material
   std::vector<uint8_t> absorbing{};  ///< per scene material: some absorption coefficient > 0
   std::vector<LightSetup> lights{};  ///< lights that can contribute (power > 0)
+  size_t shadow_per_hit = 0;          ///< most shadow rays one hit shoots (one per light sample)
+  std::vector<size_t> light_first_sample{};  ///< per light: samples of the lights before it
 
   /// Whether a hit record refers to something this context can shade.
   bool valid(const Hit& hit) const {
@@ -326,12 +367,10 @@ struct Context {
 Vec3 medium_attenuation(const Context& ctx, int id, float dist) {
   if (id < 0 || static_cast<size_t>(id) >= ctx.scene.materials.size()) return Vec3{1.0f};
   const Vec3& sigma = ctx.scene.materials[static_cast<size_t>(id)].absorption;
-  Vec3 out{1.0f};
-  for (int c = 0; c < 3; ++c) {
-    if (sigma[c] <= 0.0f) continue;
-    out[c] = std::isfinite(dist) ? std::exp(-sigma[c] * dist) : 0.0f;
-  }
-  return out;
+  // Component by component in registers (no indexed stores that the caller reloads as a vector).
+  const bool finite = std::isfinite(dist);
+  const auto channel = [&](float sg) { return sg <= 0.0f ? 1.0f : (finite ? std::exp(-sg * dist) : 0.0f); };
+  return Vec3{channel(sigma.x), channel(sigma.y), channel(sigma.z)};
 }
 
 /// The per-pixel rotation of the sphere-light sample spiral. Opaque to the optimiser (GCC's
@@ -378,15 +417,18 @@ SPECULA_OPAQUE float sample_rotation(uint32_t global_pixel) {
     c = weight * f * irradiance;
     return max_component(c) > 0.0f;
   };
-  // The shadow ray's coherence key: the path's history and the light.
+  // Written by index: render_tile sized the batch for shadow_per_hit rays per hit. In history
+  // order each light's rays go to a region of their own, in shading order, so the batch is one
+  // run per (light, history) without a TraceOrder pass; else the rays sit in request order and,
+  // grouped, carry their coherence key (the path's history and the light) for TraceOrder.
   const auto add = [&](const Vec3& c, const Ray& shadow, const LightSetup& light) {
-    s.shadow_rays.push_back(shadow);
-    s.shadow_contrib.push_back(c);
-    s.shadow_pixel.push_back(pixel);
-    if (ctx.group_rays) {  // only read where batches are grouped
-      const auto index = static_cast<uint32_t>(std::min<ptrdiff_t>(&light - ctx.lights.data(), 255));
-      s.shadow_key.push_back((uint32_t{history} << 8) | index);
-    }
+    const size_t k = s.n_shadow++;
+    const auto index = static_cast<size_t>(&light - ctx.lights.data());
+    const size_t slot = ctx.history_order ? s.light_cursor[index]++ : k;
+    s.shadow_rays[slot] = shadow;
+    s.shadow_req[k] = ShadowRequest{c, pixel, static_cast<uint32_t>(slot)};
+    if (ctx.group_rays && !ctx.history_order)  // only read where TraceOrder groups the batch
+      s.shadow_key[k] = (uint32_t{history} << 8) | static_cast<uint32_t>(std::min<size_t>(index, 255));
   };
 
   for (const LightSetup& light : ctx.lights) {
@@ -459,19 +501,34 @@ Surface triangle_surface(const Context& ctx, const Hit& hit) {
 
 /// A voxel hit: the voxel's averaged colour, reflectivity, transparency and ior over the
 /// material of its largest triangle part (specular, Phong exponent, absorption, emission);
-/// the normal the tracer reports (cube face or contour plane). \p storage holds the material.
-Surface voxel_surface(const Context& ctx, const Ray& ray, const Hit& hit, ShadeMaterial& storage) {
-  const VoxelAttributes& a = ctx.voxels->attributes(hit.prim);
-  storage = ctx.shade[ctx.shade_index(a.material)];  // its ior is still the material's own
-  finish_shade_material(storage, a.colour, a.reflectivity, a.transparency, a.transparency > 0.0f ? a.ior : storage.ior,
-                        ctx.scene.ambient);
+/// the normal the tracer reports (cube face or contour plane). Scratch::voxel_material holds the
+/// material.
+Surface voxel_surface(const Context& ctx, Scratch& s, const Ray& ray, const Hit& hit) {
+  ShadeMaterial& storage = s.voxel_material;
+  // The material depends on the voxel only: a hit on the voxel the previous voxel hit shaded
+  // (neighbouring pixels on one coarse voxel; every pixel when the camera sits in one) reuses it.
+  if (hit.prim != s.voxel_prim) {
+    const VoxelAttributes& a = ctx.voxels->attributes(hit.prim);
+    const size_t index = ctx.shade_index(a.material);
+    const ShadeMaterial& base = ctx.shade[index];
+    // The material's own fields (specular, exponent, emission) are copied only when the material
+    // changes from the previous voxel hit: finish_shade_material rewrites every per-hit field.
+    if (index != s.voxel_material_index) {
+      storage = base;
+      s.voxel_material_index = index;
+    }
+    finish_shade_material(storage, a.colour, a.reflectivity, a.transparency, a.transparency > 0.0f ? a.ior : base.ior,
+                          ctx.scene.ambient);
+    s.voxel_prim = hit.prim;
+    s.voxel_material_id = a.material;
+  }
   Surface sf;
   sf.p = ray.org + ray.dir * hit.t;
   sf.ng = hit.ng;
   if (!(dot(sf.ng, sf.ng) > 0.0f) || !is_finite(sf.ng)) sf.ng = -normalize(ray.dir);
   sf.ns = Vec3{};
   sf.m = &storage;
-  sf.material_id = a.material;
+  sf.material_id = s.voxel_material_id;
   return sf;
 }
 
@@ -513,11 +570,11 @@ void shade_hit(const Context& ctx, Scratch& s, const Ray& ray, const PathState& 
       n2 = ctx.medium_ior(refr_media.top());
     }
     const float eta = n1 / n2;
-    float fr = fresnel_dielectric(-dot(d, ns_f), eta);
-    bool ok = fr < 1.0f && refract(d, ns_f, eta, refr_dir) && dot(refr_dir, ng_f) < 0.0f;
+    float fr = detail::fresnel_dielectric(-dot(d, ns_f), eta);
+    bool ok = fr < 1.0f && detail::refract(d, ns_f, eta, refr_dir) && dot(refr_dir, ng_f) < 0.0f;
     if (!ok && fr < 1.0f) {  // the shading normal bent the ray back: use the geometric one
-      fr = fresnel_dielectric(-dot(d, ng_f), eta);
-      ok = fr < 1.0f && refract(d, ng_f, eta, refr_dir) && dot(refr_dir, ng_f) < 0.0f;
+      fr = detail::fresnel_dielectric(-dot(d, ng_f), eta);
+      ok = fr < 1.0f && detail::refract(d, ng_f, eta, refr_dir) && dot(refr_dir, ng_f) < 0.0f;
     }
     if (!ok) fr = 1.0f;  // total internal reflection
     refl_w += trans * fr;
@@ -529,18 +586,24 @@ void shade_hit(const Context& ctx, Scratch& s, const Ray& ray, const PathState& 
     if (max_component(w) >= kMinWeight) {
       Vec3 r = reflect(d, ns_f);
       if (dot(r, ng_f) <= 0.0f) r = reflect(d, ng_f);  // keep it above the geometric surface
-      s.next_rays.push_back(Ray{offset_ray_origin(p, ng_f), 0.0f, normalize(r), kInf});
-      s.next_paths.push_back(PathState{w, seg.pixel, seg.global, static_cast<uint8_t>(seg.reflect_depth + 1),
-                                       seg.refract_depth, next_history(seg.history, 0), seg.media, leave});
+      const size_t k = s.n_next++;  // render_tile sized next_* for two rays per hit
+      s.next_rays[k] = Ray{offset_ray_origin(p, ng_f), 0.0f, normalize(r), kInf};
+      s.next_paths[k] = PathState{w, seg.pixel, seg.global, static_cast<uint8_t>(seg.reflect_depth + 1),
+                                  seg.refract_depth, next_history(seg.history, 0), seg.media, leave};
     }
   }
   if (refr_w > 0.0f && seg.refract_depth < ctx.max_refract) {
     const Vec3 w = weight * refr_w;
     if (max_component(w) >= kMinWeight) {
-      s.next_rays.push_back(Ray{offset_ray_origin(p, -ng_f), 0.0f, refr_dir, kInf});
-      s.next_paths.push_back(PathState{w, seg.pixel, seg.global, seg.reflect_depth,
-                                       static_cast<uint8_t>(seg.refract_depth + 1), next_history(seg.history, 1),
-                                       refr_media, leave});
+      // In history order (Context::history_order) a run's refraction rays wait in refr_* until
+      // the run is shaded, then follow its mirror rays.
+      std::vector<Ray>& rays = ctx.history_order ? s.refr_rays : s.next_rays;
+      std::vector<PathState>& paths = ctx.history_order ? s.refr_paths : s.next_paths;
+      const size_t k = ctx.history_order ? s.n_refr++ : s.n_next++;
+      rays[k] = Ray{offset_ray_origin(p, -ng_f), 0.0f, refr_dir, kInf};
+      paths[k] = PathState{w, seg.pixel, seg.global, seg.reflect_depth,
+                           static_cast<uint8_t>(seg.refract_depth + 1), next_history(seg.history, 1), refr_media,
+                           leave};
     }
   }
 }
@@ -559,28 +622,43 @@ void render_tile(const Context& ctx, const SkyEval& sky, Scratch& s, const Pinho
 
   s.accum.assign(npix, Vec3{});
   if (ctx.want_cost) s.cost.assign(npix, 0);
-  s.rays.clear();
-  s.paths.clear();
   // Primary rays in 4x4 pixel blocks: every 16 consecutive rays of the wavefront are neighbours,
   // which a tracer may trace as one packet (the BVH does), and so are the shadow rays their hits
   // shoot. Each pixel's own segments keep their order, so the image is the same bit for bit.
-  for (int by = y0; by < y1; by += 4)
-    for (int bx = x0; bx < x1; bx += 4)
-      for (int y = by; y < std::min(by + 4, y1); ++y)
-        for (int x = bx; x < std::min(bx + 4, x1); ++x) {
-          s.rays.push_back(camera.generate(static_cast<float>(x) + 0.5f, static_cast<float>(y) + 0.5f));
-          PathState& ps = s.paths.emplace_back();
-          ps.weight = Vec3{1.0f};
-          ps.pixel = static_cast<uint32_t>((y - y0) * tw + (x - x0));
-          ps.global = static_cast<uint32_t>(y) * static_cast<uint32_t>(ctx.width) + static_cast<uint32_t>(x);
-          ps.reflect_depth = 0;
-          ps.refract_depth = 0;
-          ps.history = 1;
+  // The camera's per-column half of the direction is computed once per column of the tile
+  // (PinholeCamera::column: the same sum in the same order as generate()).
+  ensure_size(s.columns, static_cast<size_t>(tw));
+  for (int x = x0; x < x1; ++x) s.columns[static_cast<size_t>(x - x0)] = camera.column(static_cast<float>(x) + 0.5f);
+  ensure_size(s.rays, npix);
+  ensure_size(s.paths, npix);
+  {
+    size_t k = 0;
+    for (int by = y0; by < y1; by += 4)
+      for (int bx = x0; bx < x1; bx += 4)
+        for (int y = by; y < std::min(by + 4, y1); ++y) {
+          const float py = static_cast<float>(y) + 0.5f;
+          for (int x = bx; x < std::min(bx + 4, x1); ++x, ++k) {
+            s.rays[k] = camera.ray_from_column(s.columns[static_cast<size_t>(x - x0)], py);
+            PathState& ps = s.paths[k];
+            ps = PathState{};
+            ps.weight = Vec3{1.0f};
+            ps.pixel = static_cast<uint32_t>((y - y0) * tw + (x - x0));
+            ps.global = static_cast<uint32_t>(y) * static_cast<uint32_t>(ctx.width) + static_cast<uint32_t>(x);
+            ps.reflect_depth = 0;
+            ps.refract_depth = 0;
+            ps.history = 1;
+          }
         }
+    s.n_rays = k;
+  }
   counters.primary += npix;
+  s.voxel_material_index = SIZE_MAX;
+  s.voxel_prim = kNoHit;
 
-  while (!s.rays.empty()) {
-    const size_t n = s.rays.size();
+  while (s.n_rays != 0) {
+    const size_t n = s.n_rays;
+    const std::span<const Ray> rays(s.rays.data(), n);
+    const std::span<const PathState> paths(s.paths.data(), n);
     // Voxel media (seed 001): a ray inside a medium passes the voxels of that medium's material.
     std::span<const uint32_t> skip, skip_prim;
     if (ctx.voxels) {
@@ -588,59 +666,86 @@ void render_tile(const Context& ctx, const SkyEval& sky, Scratch& s, const Pinho
       s.skip_prim.resize(n);
       bool any = false, any_prim = false;
       for (size_t i = 0; i < n; ++i) {
-        const int top = s.paths[i].media.top();
+        const int top = paths[i].media.top();
         s.skip[i] = top < 0 ? kNoHit : static_cast<uint32_t>(top);
-        s.skip_prim[i] = s.paths[i].leave;
+        s.skip_prim[i] = paths[i].leave;
         any = any || top >= 0;
-        any_prim = any_prim || s.paths[i].leave != kNoHit;
+        any_prim = any_prim || paths[i].leave != kNoHit;
       }
       if (any) skip = s.skip;
       if (any_prim) skip_prim = s.skip_prim;
     }
-    const auto trace = [&](std::span<const Ray> rays, std::span<const uint32_t> skips,
+    const auto trace = [&](std::span<const Ray> r, std::span<const uint32_t> skips,
                            std::span<const uint32_t> skip_prims, std::span<Hit> hits, TraceStats* ts) {
       if (!skips.empty() || !skip_prims.empty())
-        ctx.voxels->intersect_skipping(rays, skips, hits, ts, skip_prims);
+        ctx.voxels->intersect_skipping(r, skips, hits, ts, skip_prims);
       else
-        ctx.tracer.intersect(rays, hits, ts);
+        ctx.tracer.intersect(r, hits, ts);
     };
     if (ctx.want_cost) {
       // Per-ray queries so the node visits can be charged to their pixel.
       s.hits.assign(n, Hit{});
       for (size_t i = 0; i < n; ++i) {
         TraceStats ts;
-        trace(std::span<const Ray>(&s.rays[i], 1), skip.empty() ? skip : skip.subspan(i, 1),
+        trace(rays.subspan(i, 1), skip.empty() ? skip : skip.subspan(i, 1),
               skip_prim.empty() ? skip_prim : skip_prim.subspan(i, 1),
               std::span<Hit>(&s.hits[i], 1), &ts);
-        s.cost[s.paths[i].pixel] += ts.nodes_visited;
+        s.cost[paths[i].pixel] += ts.nodes_visited;
       }
     } else {
       // (The primary wavefront has one history: nothing to order. Voxel tracers group their
       // batches by direction octant themselves, which is the same grouping here.)
       bool reorder = false;
-      if (ctx.group_rays && !s.paths.front().primary()) {
+      if (ctx.group_rays && !ctx.history_order && !paths.front().primary()) {
         s.key.resize(n);
-        for (size_t i = 0; i < n; ++i) s.key[i] = s.paths[i].history;
+        for (size_t i = 0; i < n; ++i) s.key[i] = paths[i].history;
         reorder = s.trace_order.build(s.key);
       }
       if (reorder) {  // coherent rays side by side (TraceOrder; never for voxels: no skips)
-        s.trace_order.trace_in_order(s.rays, s.sorted_rays, s.sorted_hits, s.hits,
+        s.hits.resize(n);
+        s.trace_order.trace_in_order(rays, s.sorted_rays, s.sorted_hits, std::span<Hit>(s.hits),
                                      [&](std::span<const Ray> r, std::span<Hit> h) { trace(r, {}, {}, h, nullptr); });
       } else {
         s.hits.assign(n, Hit{});
-        trace(s.rays, skip, skip_prim, s.hits, nullptr);
+        trace(rays, skip, skip_prim, s.hits, nullptr);
       }
     }
 
-    s.next_rays.clear();
-    s.next_paths.clear();
-    s.shadow_rays.clear();
-    s.shadow_contrib.clear();
-    s.shadow_pixel.clear();
-    s.shadow_key.clear();
+    // Room for everything shading can emit: two rays and shadow_per_hit shadow rays per hit.
+    ensure_size(s.next_rays, 2 * n);
+    ensure_size(s.next_paths, 2 * n);
+    s.n_next = 0;
+    if (ctx.shadows) {
+      const size_t most = n * ctx.shadow_per_hit;
+      ensure_size(s.shadow_rays, most);
+      ensure_size(s.shadow_req, most);
+      if (ctx.group_rays && !ctx.history_order) ensure_size(s.shadow_key, most);
+      if (ctx.history_order) {
+        s.light_cursor.resize(ctx.lights.size());
+        for (size_t l = 0; l < ctx.lights.size(); ++l) s.light_cursor[l] = n * ctx.light_first_sample[l];
+      }
+    }
+    s.n_shadow = 0;
+    if (ctx.history_order) {
+      ensure_size(s.refr_rays, n);
+      ensure_size(s.refr_paths, n);
+    }
+    s.n_refr = 0;
+    // History order: a run's refraction rays follow its mirror rays.
+    const auto flush_refractions = [&] {
+      std::copy_n(s.refr_rays.begin(), s.n_refr, s.next_rays.begin() + static_cast<ptrdiff_t>(s.n_next));
+      std::copy_n(s.refr_paths.begin(), s.n_refr, s.next_paths.begin() + static_cast<ptrdiff_t>(s.n_next));
+      s.n_next += s.n_refr;
+      s.n_refr = 0;
+    };
+    uint16_t run = paths.front().history;
     for (size_t i = 0; i < n; ++i) {
-      const Ray& ray = s.rays[i];
-      const PathState& seg = s.paths[i];
+      const Ray& ray = rays[i];
+      const PathState& seg = paths[i];
+      if (seg.history != run) {
+        if (s.n_refr != 0) flush_refractions();
+        run = seg.history;
+      }
       const Hit& hit = s.hits[i];
       const bool valid = ctx.valid(hit);
       Vec3 weight = seg.weight;
@@ -657,7 +762,7 @@ void render_tile(const Context& ctx, const SkyEval& sky, Scratch& s, const Pinho
         continue;
       }
       if (max_component(weight) <= 0.0f) continue;
-      const Surface sf = ctx.voxels ? voxel_surface(ctx, ray, hit, s.voxel_material) : triangle_surface(ctx, hit);
+      const Surface sf = ctx.voxels ? voxel_surface(ctx, s, ray, hit) : triangle_surface(ctx, hit);
       shade_hit(ctx, s, ray, seg, weight, sf, ctx.voxels ? hit.prim : kNoHit);
       if (seg.primary() && ctx.want_normal) {
         Vec3 nrm = sf.ns != Vec3{} ? sf.ns : sf.ng;
@@ -666,28 +771,55 @@ void render_tile(const Context& ctx, const SkyEval& sky, Scratch& s, const Pinho
       }
     }
 
-    const size_t ns = s.shadow_rays.size();
-    if (ns > 0) {
+    if (s.n_refr != 0) flush_refractions();
+
+    const size_t ns = s.n_shadow;
+    if (ns > 0 && ctx.history_order) {
+      // One region per light, each in shading order: (light, history) runs side by side.
+      ensure_size(s.shadow_t, n * ctx.shadow_per_hit);
+      if (ctx.want_cost) {
+        for (size_t i = 0; i < ns; ++i) {
+          TraceStats ts;
+          const size_t slot = s.shadow_req[i].slot;
+          ctx.tracer.transmittance(std::span<const Ray>(&s.shadow_rays[slot], 1), std::span<Vec3>(&s.shadow_t[slot], 1),
+                                   &ts);
+          s.cost[s.shadow_req[i].pixel] += ts.nodes_visited;
+        }
+      } else {
+        for (size_t l = 0; l < ctx.lights.size(); ++l) {
+          const size_t first = n * ctx.light_first_sample[l], count = s.light_cursor[l] - first;
+          if (count == 0) continue;
+          const std::span<Vec3> t(s.shadow_t.data() + first, count);
+          std::fill(t.begin(), t.end(), Vec3{});
+          ctx.tracer.transmittance(std::span<const Ray>(s.shadow_rays.data() + first, count), t);
+        }
+      }
+      for (size_t i = 0; i < ns; ++i)
+        s.accum[s.shadow_req[i].pixel] += s.shadow_req[i].contrib * s.shadow_t[s.shadow_req[i].slot];
+      counters.shadow += ns;
+    } else if (ns > 0) {
+      const std::span<const Ray> shadow_rays(s.shadow_rays.data(), ns);
       s.shadow_t.assign(ns, Vec3{});
       if (ctx.want_cost) {
         for (size_t i = 0; i < ns; ++i) {
           TraceStats ts;
-          ctx.tracer.transmittance(std::span<const Ray>(&s.shadow_rays[i], 1),
-                                   std::span<Vec3>(&s.shadow_t[i], 1), &ts);
-          s.cost[s.shadow_pixel[i]] += ts.nodes_visited;
+          ctx.tracer.transmittance(shadow_rays.subspan(i, 1), std::span<Vec3>(&s.shadow_t[i], 1), &ts);
+          s.cost[s.shadow_req[i].pixel] += ts.nodes_visited;
         }
-      } else if (ctx.group_rays && s.trace_order.build(s.shadow_key)) {  // coherent rays side by side (TraceOrder)
-        s.trace_order.trace_in_order(s.shadow_rays, s.sorted_rays, s.sorted_t, s.shadow_t,
+      } else if (ctx.group_rays && s.trace_order.build(std::span<const uint32_t>(s.shadow_key.data(), ns))) {
+        // coherent rays side by side (TraceOrder)
+        s.trace_order.trace_in_order(shadow_rays, s.sorted_rays, s.sorted_t, std::span<Vec3>(s.shadow_t),
                                      [&](std::span<const Ray> r, std::span<Vec3> t) { ctx.tracer.transmittance(r, t); });
       } else {
-        ctx.tracer.transmittance(s.shadow_rays, s.shadow_t);
+        ctx.tracer.transmittance(shadow_rays, s.shadow_t);
       }
-      for (size_t i = 0; i < ns; ++i) s.accum[s.shadow_pixel[i]] += s.shadow_contrib[i] * s.shadow_t[i];
+      for (size_t i = 0; i < ns; ++i) s.accum[s.shadow_req[i].pixel] += s.shadow_req[i].contrib * s.shadow_t[i];
       counters.shadow += ns;
     }
-    counters.secondary += s.next_rays.size();
+    counters.secondary += s.n_next;
     std::swap(s.rays, s.next_rays);
     std::swap(s.paths, s.next_paths);
+    s.n_rays = s.n_next;
   }
 
   for (int y = y0; y < y1; ++y)
@@ -739,8 +871,11 @@ Film render_whitted(const Scene& scene, const Tracer& tracer, const RenderOption
     cam = scene.cameras[*idx];
   }
   if (scene.indices.size() % 3 != 0) throw Error("render: scene index count is not a multiple of 3");
-  for (uint32_t i : scene.indices)
-    if (i >= scene.positions.size()) throw Error("render: scene has a vertex index out of range");
+  // (A branch-free maximum, which the compiler vectorises: this runs for every frame.)
+  uint32_t max_index = 0;
+  for (uint32_t i : scene.indices) max_index = std::max(max_index, i);
+  if (!scene.indices.empty() && max_index >= scene.positions.size())
+    throw Error("render: scene has a vertex index out of range");
 
   Film film;
   film.width = w;
@@ -765,6 +900,7 @@ Film render_whitted(const Scene& scene, const Tracer& tracer, const RenderOption
   // Voxel tracers group their batches by direction octant themselves, which for Whitted's
   // wavefronts is the same grouping: no second pass over the rays for them.
   ctx.group_rays = options.group_coherent_rays && ctx.voxels == nullptr;
+  ctx.history_order = ctx.group_rays && ctx.max_reflect + ctx.max_refract < 15;
   ctx.vertex_normals = scene.normals.size() == scene.positions.size();
   // Per-render constants of the shading: materials (the fallback last) and lights.
   ctx.shade.reserve(scene.materials.size() + 1);
@@ -796,6 +932,10 @@ Film render_whitted(const Scene& scene, const Tracer& tracer, const RenderOption
       }
     }
     ctx.lights.push_back(std::move(ls));
+  }
+  for (const LightSetup& ls : ctx.lights) {
+    ctx.light_first_sample.push_back(ctx.shadow_per_hit);
+    ctx.shadow_per_hit += ls.rr.empty() ? 1 : ls.rr.size();
   }
 
   const SkyEval sky(scene.sky);
