@@ -626,10 +626,6 @@ struct Cell {
 };
 static_assert(std::is_trivially_copyable_v<Cell>, "cells are cleared with memset");
 
-/// Vertices stored per part at least (parts with fewer repeat their first vertex), so that the
-/// loops over a part's vertices have a fixed trip count; most parts have 3 to 6.
-constexpr int kPartPad = 6;
-
 /// Per-thread scratch of the brick stage.
 struct Scratch {
   std::vector<uint32_t> slot_of;  ///< local Morton code -> slot (kNoSlot when untouched)
@@ -775,47 +771,21 @@ void process_brick(const Context& cx, uint64_t brick, const BinEntry* first, con
         slabs(py, 2, lo[2], rn[2], [&](uint32_t iz, const Poly& q) {
           Cell& cell = s.cells[(static_cast<size_t>(iz) * rn[1] + iy) * rn[0] + ix];
           const int m = q.n;
-          const int stored = std::max(m, kPartPad);
-          if (s.nverts + static_cast<size_t>(stored) > s.verts.size())
-            s.verts.resize(std::max<size_t>(2 * s.verts.size(), 4096));
+          if (s.nverts + static_cast<size_t>(m) > s.verts.size()) s.verts.resize(std::max<size_t>(2 * s.verts.size(), 4096));
           cell.first = static_cast<uint32_t>(s.nverts);
           Float4* dst = s.verts.data() + s.nverts;
-          s.nverts += static_cast<size_t>(stored);
+          s.nverts += static_cast<size_t>(m);
           cell.count = static_cast<uint16_t>(m);
-          // The first kPartPad vertices without a data-dependent loop exit (the vertex count
-          // varies from part to part and its loops' exits were mispredicted): a part with fewer
-          // is padded with copies of its first vertex. A copy changes no contour (a min or max
-          // over the same points), adds exact zeros to the area's fan after its real terms and
-          // zero vectors to the vertex sum (the same bits as the loops over the m vertices).
+          cell.area = m >= 3 ? static_cast<float>(std::fabs(projected_area2(q, pu, pv)) * area_scale) : 0.0f;
+          // Vertices relative to the voxel's minimum corner, and their average for the
+          // certificate that the part meets the voxel's interior.
           const Vertex4 o = {lo[0] + ix, lo[1] + iy, lo[2] + iz, 0.0};
-          Vertex4 pad[kPartPad];
           Vertex4 sum = {0, 0, 0, 0};
-          typedef int64_t Lanes4 __attribute__((vector_size(32)));
-          for (int i = 0; i < kPartPad; ++i) {
-            // Index and mask arithmetic, not conditionals (those compiled to branches).
-            const int real = static_cast<int>(i < m);
-            pad[i] = q.p[i & -real];
-            const Vertex4 v = pad[i] - o;
-            dst[i] = __builtin_convertvector(v, Float4);
-            const int64_t keep = -static_cast<int64_t>(real);
-            const Lanes4 mask = {keep, keep, keep, keep};
-            sum += reinterpret_cast<Vertex4>(reinterpret_cast<Lanes4>(v) & mask);
-          }
-          // Twice the projected area: the fan from vertex 0 (projected_area2's terms, in order).
-          const double u0 = pad[0][pu], v0 = pad[0][pv];
-          double area2 = 0.0;
-          for (int i = 1; i + 1 < kPartPad; ++i)
-            area2 += (pad[i][pu] - u0) * (pad[i + 1][pv] - v0) - (pad[i + 1][pu] - u0) * (pad[i][pv] - v0);
-          for (int i = kPartPad; i < m; ++i) {  // the rare larger parts: the rest as before
+          for (int i = 0; i < m; ++i) {
             const Vertex4 v = q.p[i] - o;
             dst[i] = __builtin_convertvector(v, Float4);
             sum += v;
           }
-          for (int i = kPartPad - 1; i + 1 < m; ++i)
-            area2 += (q.p[i][pu] - u0) * (q.p[i + 1][pv] - v0) - (q.p[i + 1][pu] - u0) * (q.p[i][pv] - v0);
-          // (fewer than 3 vertices: every term is an exact zero, so the area is 0)
-          cell.area = static_cast<float>(std::fabs(area2) * area_scale);
-          // The vertex average certifies that the part meets the voxel's interior.
           const double lo_sum = kInsideMargin * m, hi_sum = (1.0 - kInsideMargin) * m;
           cell.inside = static_cast<uint16_t>(static_cast<int>(sum[0] > lo_sum) & static_cast<int>(sum[0] < hi_sum) &
                                               static_cast<int>(sum[1] > lo_sum) & static_cast<int>(sum[1] < hi_sum) &
@@ -1017,24 +987,12 @@ void process_brick(const Context& cx, uint64_t brick, const BinEntry* first, con
       // d = n0 (v0 - 0.5) + n1 (v1 - 0.5) + n2 (v2 - 0.5): the products in one vector.
       const Vertex4 nrm = {sl.normal[0], sl.normal[1], sl.normal[2], 0.0};
       const Vertex4 half = {0.5, 0.5, 0.5, 0.5};
-      if (p.vcount == 0) continue;  // accepted by the tests without a part (rare)
-      // kPartPad vertices at least (the padding repeats the first): no loop exit to predict.
-      const Float4* pv = s.verts.data() + p.vfirst;
-      double cmin = sl.cmin, cmax = sl.cmax;
-      for (uint32_t i = 0; i < static_cast<uint32_t>(kPartPad); ++i) {
-        const Vertex4 prod = (__builtin_convertvector(pv[i], Vertex4) - half) * nrm;
+      for (uint32_t i = 0; i < p.vcount; ++i) {
+        const Vertex4 prod = (__builtin_convertvector(s.verts[p.vfirst + i], Vertex4) - half) * nrm;
         const double d = prod[0] + prod[1] + prod[2];
-        cmin = std::min(cmin, d);
-        cmax = std::max(cmax, d);
+        sl.cmin = std::min(sl.cmin, d);
+        sl.cmax = std::max(sl.cmax, d);
       }
-      for (uint32_t i = kPartPad; i < p.vcount; ++i) {
-        const Vertex4 prod = (__builtin_convertvector(pv[i], Vertex4) - half) * nrm;
-        const double d = prod[0] + prod[1] + prod[2];
-        cmin = std::min(cmin, d);
-        cmax = std::max(cmax, d);
-      }
-      sl.cmin = cmin;
-      sl.cmax = cmax;
       sl.verts += p.vcount;
     }
     const double side = static_cast<double>(cx.chk.grid.voxel_size());
