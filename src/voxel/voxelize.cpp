@@ -742,7 +742,6 @@ void process_brick(const Context& cx, uint64_t brick, const BinEntry* first, con
   // z; each cut is one plane), in brick-local leaf units, and records per part its area (from
   // the projection onto the normal's dominant axis), its vertices relative to the voxel and
   // whether it certainly meets the voxel's interior. Cost ~ the number of parts.
-  const bool direct_accept = clip_shortcut && cx.opt.strategy.traversal != VoxelTraversal::Octree;
   auto cut_parts = [&](const TriBox& t) {
     // Only the range's cells are cleared (memset: Cell is trivially copyable); the vector
     // keeps its size between triangles.
@@ -787,17 +786,8 @@ void process_brick(const Context& cx, uint64_t brick, const BinEntry* first, con
             sum += v;
           }
           const double lo_sum = kInsideMargin * m, hi_sum = (1.0 - kInsideMargin) * m;
-          cell.inside = static_cast<uint16_t>(static_cast<int>(sum[0] > lo_sum) & static_cast<int>(sum[0] < hi_sum) &
-                                              static_cast<int>(sum[1] > lo_sum) & static_cast<int>(sum[1] < hi_sum) &
-                                              static_cast<int>(sum[2] > lo_sum) & static_cast<int>(sum[2] < hi_sum));
-          // A certified part is a pair: accepted here, and skipped by the candidate loop (every
-          // certified voxel is a candidate: it passes the exact tests that bound the loop).
-          // Accepting in this order rather than the loop's changes no bit: a voxel meets each
-          // triangle once, so its sums still run in triangle order, and the output is sorted.
-          if (direct_accept && cell.inside != 0) {
-            ++s.counters.clip;
-            accept(r0[0] + ix, r0[1] + iy, r0[2] + iz, &cell);
-          }
+          cell.inside = sum[0] > lo_sum && sum[0] < hi_sum && sum[1] > lo_sum && sum[1] < hi_sum &&
+                        sum[2] > lo_sum && sum[2] < hi_sum;
         });
       });
     });
@@ -838,11 +828,9 @@ void process_brick(const Context& cx, uint64_t brick, const BinEntry* first, con
       ++s.counters.aabb;
       const Cell* part = attrs ? &cell_of(x, y, z) : nullptr;
       if (clip_shortcut && part != nullptr && part->inside) {
-        if (!direct_accept) {
-          ++s.counters.clip;
-          accept(x, y, z, part);
-        }
-        return;  // (accepted by cut_parts when direct_accept)
+        ++s.counters.clip;
+        accept(x, y, z, part);
+        return;
       }
       const LatticeBox box{{static_cast<int64_t>(x) << F, static_cast<int64_t>(y) << F, static_cast<int64_t>(z) << F}, S};
       if (cx.tests.pass(t, box, true, s.counters)) accept(x, y, z, part);
@@ -876,8 +864,6 @@ void process_brick(const Context& cx, uint64_t brick, const BinEntry* first, con
     int64_t ecs[3];
     for (int i = 0; i < 3; ++i) ecs[i] = ec[i] + t.ecrit[w][i] * S;
     uint32_t q[3];
-    // Cells per step along w in the range's cell array.
-    const int64_t wstride = w == 0 ? 1 : (w == 1 ? static_cast<int64_t>(rn[0]) : static_cast<int64_t>(rn[0]) * rn[1]);
     for (uint32_t cv = r0[v]; cv <= r1[v]; ++cv)
       for (uint32_t cu = r0[u]; cu <= r1[u]; ++cu) {
         if (column_test) {
@@ -898,39 +884,9 @@ void process_brick(const Context& cx, uint64_t brick, const BinEntry* first, con
         if (k0 > k1) continue;
         q[u] = cu;
         q[v] = cv;
-        if (!direct_accept) {
-          for (uint32_t k = static_cast<uint32_t>(k0); k <= static_cast<uint32_t>(k1); ++k) {
-            q[w] = k;
-            try_voxel(q[0], q[1], q[2]);
-          }
-          continue;
-        }
-        // The certified candidates are accepted already: only the others (rare) run the
-        // tests. The first kWindow candidates of the column are checked without a loop exit
-        // (its trip count, 1 to 4, was mispredicted), as one bit mask of the uncertified.
-        constexpr int kWindow = 4;
-        s.counters.aabb += static_cast<uint64_t>(k1 - k0 + 1);
-        q[w] = r0[w];
-        const Cell* col = &cell_of(q[0], q[1], q[2]);
-        const int64_t kr0 = r0[w];
-        uint32_t uncertified = 0;
-        for (int j = 0; j < kWindow; ++j) {
-          const int64_t k = k0 + j;
-          const int valid = static_cast<int>(k <= k1);
-          const int64_t kc = std::min(k, k1);  // in range (a repeat of the last when past it)
-          uncertified |= static_cast<uint32_t>(valid & static_cast<int>(col[(kc - kr0) * wstride].inside == 0)) << j;
-        }
-        for (int64_t k = k0 + kWindow; k <= k1; ++k)
-          uncertified |= static_cast<uint32_t>(col[(k - kr0) * wstride].inside == 0) << (k - k0);
-        while (uncertified != 0) {
-          const int j = std::countr_zero(uncertified);
-          uncertified &= uncertified - 1;
-          q[w] = static_cast<uint32_t>(k0 + j);
-          const Cell* part = &cell_of(q[0], q[1], q[2]);
-          const LatticeBox box{{static_cast<int64_t>(q[0]) << F, static_cast<int64_t>(q[1]) << F,
-                                static_cast<int64_t>(q[2]) << F},
-                               S};
-          if (cx.tests.pass(t, box, true, s.counters)) accept(q[0], q[1], q[2], part);
+        for (uint32_t k = static_cast<uint32_t>(k0); k <= static_cast<uint32_t>(k1); ++k) {
+          q[w] = k;
+          try_voxel(q[0], q[1], q[2]);
         }
       }
   }
