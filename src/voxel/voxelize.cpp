@@ -703,24 +703,26 @@ void process_brick(const Context& cx, uint64_t brick, const BinEntry* first, con
   // Records the pair (voxel, current triangle): the voxel's slot, and with attributes the
   // area-weighted sums (in triangle order, as each voxel meets a triangle at most once) and
   // the part's vertices for the contours.
-  // \p part: the pair's Cell (looked up when null; only read with attributes).
-  auto accept = [&](uint32_t X, uint32_t Y, uint32_t Z, const Cell* part = nullptr) {
+  // \p lcode: the voxel's Morton code in the brick; \p part: the pair's Cell (only read, and
+  // then not null, with attributes).
+  uint32_t* const slot_of = s.slot_of.data();  // (neither array is resized during a brick)
+  uint32_t* const touched = s.touched.data();
+  auto accept_code = [&](uint32_t lcode, const Cell* part) {
     ++s.counters.pairs;
-    const uint32_t lcode = kSpread5[X & bmask] | kSpread5[Y & bmask] << 1 | kSpread5[Z & bmask] << 2;
     // A new voxel takes the next slot, without a branch (whether a voxel is new is data-
     // dependent and was mispredicted often): the code is written past the end of the touched
     // list and counted only when new.
-    const uint32_t old_slot = s.slot_of[lcode];
+    const uint32_t old_slot = slot_of[lcode];
     const uint32_t n = static_cast<uint32_t>(s.ntouched);
     const uint32_t is_new = static_cast<uint32_t>(old_slot == kNoSlot);
     const uint32_t new_mask = 0u - is_new;
     const uint32_t slot = (old_slot & ~new_mask) | (n & new_mask);
-    s.slot_of[lcode] = slot;
-    s.touched[n] = lcode;
+    slot_of[lcode] = slot;
+    touched[n] = lcode;
     s.ntouched += is_new;
     if (!attrs) return;
     if (slot >= s.slots.size()) s.slots.resize(std::max<size_t>(2 * s.slots.size(), 1024));  // zeros
-    const Cell& cell = part ? *part : cell_of(X, Y, Z);
+    const Cell& cell = *part;
     const float area = cell.area;
     Slot& sl = s.slots[slot];
     const double w = area;
@@ -736,6 +738,13 @@ void process_brick(const Context& cx, uint64_t brick, const BinEntry* first, con
     sl.best_area = std::max(sl.best_area, area);  // area >= 0, and best_area is 0 while count is
     ++sl.count;
     s.pairs.push_back({slot, cur_tri, cell.first, cell.count});
+  };
+  auto local_code = [&](uint32_t X, uint32_t Y, uint32_t Z) {
+    return kSpread5[X & bmask] | kSpread5[Y & bmask] << 1 | kSpread5[Z & bmask] << 2;
+  };
+  // The same from voxel coordinates; \p part looked up when null.
+  auto accept = [&](uint32_t X, uint32_t Y, uint32_t Z, const Cell* part = nullptr) {
+    accept_code(local_code(X, Y, Z), attrs && part == nullptr ? &cell_of(X, Y, Z) : part);
   };
 
   // Cuts the triangle into its parts per leaf voxel of the range (slabs along x, then y, then
@@ -864,6 +873,8 @@ void process_brick(const Context& cx, uint64_t brick, const BinEntry* first, con
     int64_t ecs[3];
     for (int i = 0; i < 3; ++i) ecs[i] = ec[i] + t.ecrit[w][i] * S;
     uint32_t q[3];
+    // Cells per step along w in the range's cell array.
+    const int64_t wstride = w == 0 ? 1 : (w == 1 ? static_cast<int64_t>(rn[0]) : static_cast<int64_t>(rn[0]) * rn[1]);
     for (uint32_t cv = r0[v]; cv <= r1[v]; ++cv)
       for (uint32_t cu = r0[u]; cu <= r1[u]; ++cu) {
         if (column_test) {
@@ -884,9 +895,24 @@ void process_brick(const Context& cx, uint64_t brick, const BinEntry* first, con
         if (k0 > k1) continue;
         q[u] = cu;
         q[v] = cv;
+        // The column's share of the local code and of the cell index, once per column.
+        q[w] = r0[w];
+        const uint32_t col_code = local_code(q[0], q[1], q[2]) & ~(kSpread5[r0[w] & bmask] << w);
+        const Cell* col_cells = attrs ? &cell_of(q[0], q[1], q[2]) - static_cast<int64_t>(r0[w]) * wstride : nullptr;
         for (uint32_t k = static_cast<uint32_t>(k0); k <= static_cast<uint32_t>(k1); ++k) {
+          ++s.counters.aabb;
+          const uint32_t lcode = col_code | kSpread5[k & bmask] << w;
+          const Cell* part = attrs ? col_cells + static_cast<int64_t>(k) * wstride : nullptr;
+          if (clip_shortcut && part->inside) {
+            ++s.counters.clip;
+            accept_code(lcode, part);
+            continue;
+          }
           q[w] = k;
-          try_voxel(q[0], q[1], q[2]);
+          const LatticeBox box{{static_cast<int64_t>(q[0]) << F, static_cast<int64_t>(q[1]) << F,
+                                static_cast<int64_t>(q[2]) << F},
+                               S};
+          if (cx.tests.pass(t, box, true, s.counters)) accept_code(lcode, part);
         }
       }
   }
