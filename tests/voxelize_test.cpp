@@ -493,8 +493,8 @@ TEST(VoxelizeAttributes, ContoursAndAreaWeightsAgreeWithABruteForceClipInDouble)
 
 TEST(VoxelizeAttributes, PartsWithMoreThanSixVerticesAgreeWithTheBruteForceClip) {
   // Large tilted triangles at depth 3: the plane cuts whole voxels through six faces and the
-  // triangle's own edges cut more, so parts with 7 to 9 vertices occur (the voxelizer stores
-  // and folds a part's first 6 vertices without a loop and the rest in a second loop).
+  // triangle's own edges cut more, so parts with 7 to 9 vertices occur (the most a triangle
+  // cut by a cube can have; the polygon buffers, the area fan and the contours must hold them).
   std::mt19937 rng(5);
   std::uniform_real_distribution<float> u(0.0f, 1.0f);
   Mesh m;
