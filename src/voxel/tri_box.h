@@ -64,8 +64,10 @@ inline void prepare(TriBox& t, const int64_t a[3], const int64_t b[3], const int
     t.v[0][k] = a[k];
     t.v[1][k] = b[k];
     t.v[2][k] = c[k];
-    t.lo[k] = a[k] < b[k] ? (a[k] < c[k] ? a[k] : c[k]) : (b[k] < c[k] ? b[k] : c[k]);
-    t.hi[k] = a[k] > b[k] ? (a[k] > c[k] ? a[k] : c[k]) : (b[k] > c[k] ? b[k] : c[k]);
+    // Two-operand minima and maxima (selects; the nested conditionals compiled to branches).
+    const int64_t ab_lo = a[k] < b[k] ? a[k] : b[k], ab_hi = a[k] > b[k] ? a[k] : b[k];
+    t.lo[k] = ab_lo < c[k] ? ab_lo : c[k];
+    t.hi[k] = ab_hi > c[k] ? ab_hi : c[k];
   }
   const int64_t e0[3] = {b[0] - a[0], b[1] - a[1], b[2] - a[2]};
   const int64_t e1[3] = {c[0] - b[0], c[1] - b[1], c[2] - b[2]};

@@ -314,12 +314,14 @@ struct Slot {
   /// sum would); lane 3 of `nw` is the total weight.
   Double4u nw = {0, 0, 0, 0}, col = {0, 0, 0, 0}, ti = {0, 0, 0, 0};
   uint32_t count = 0;
-  float best_area = -1.0f;
+  float best_area = 0.0f;  ///< meaningful once count > 0
   uint32_t best_tri = 0;
   double cmin = 0, cmax = 0;
   uint32_t verts = 0;
-  float normal[3] = {0, 0, 1};
+  float normal[3] = {0, 0, 0};  ///< set when the brick's sums are complete
 };
+// A fresh slot is all zero bits: the slots of a brick are cleared by one memset after it.
+static_assert(std::is_trivially_copyable_v<Slot>, "slots are cleared with memset");
 struct PairRec {
   uint32_t slot;
   uint32_t tri;
@@ -627,10 +629,13 @@ static_assert(std::is_trivially_copyable_v<Cell>, "cells are cleared with memset
 /// Per-thread scratch of the brick stage.
 struct Scratch {
   std::vector<uint32_t> slot_of;  ///< local Morton code -> slot (kNoSlot when untouched)
-  std::vector<uint32_t> touched;  ///< local codes touched in this brick, first-touch order
+  /// Local codes touched in this brick, first-touch order: the first ntouched entries (sized
+  /// to the brick's voxel count + 1, so a slot is created without a branch).
+  std::vector<uint32_t> touched;
+  size_t ntouched = 0;
   std::vector<uint64_t> bits;     ///< one bit per local code (all clear between bricks)
   std::vector<uint32_t> sorted;   ///< touched, in increasing order
-  std::vector<Slot> slots;
+  std::vector<Slot> slots;  ///< the first ntouched are in use; every later one is all zero
   std::vector<PairRec> pairs;
   std::vector<Float4> verts;  ///< the first nverts are in use: (x, y, z, 0)
   size_t nverts = 0;
@@ -682,8 +687,7 @@ void process_brick(const Context& cx, uint64_t brick, const BinEntry* first, con
   const bool clip_shortcut = attrs && cx.opt.strategy.clip_shortcut;
   const uint32_t res_max = (1u << cx.opt.depth) - 1u;
 
-  s.touched.clear();
-  s.slots.clear();
+  s.ntouched = 0;
   s.pairs.clear();
   s.nverts = 0;
 
@@ -699,19 +703,26 @@ void process_brick(const Context& cx, uint64_t brick, const BinEntry* first, con
   // Records the pair (voxel, current triangle): the voxel's slot, and with attributes the
   // area-weighted sums (in triangle order, as each voxel meets a triangle at most once) and
   // the part's vertices for the contours.
-  // \p part: the pair's Cell (looked up when null; only read with attributes).
-  auto accept = [&](uint32_t X, uint32_t Y, uint32_t Z, const Cell* part = nullptr) {
+  // \p lcode: the voxel's Morton code in the brick; \p part: the pair's Cell (only read, and
+  // then not null, with attributes).
+  uint32_t* const slot_of = s.slot_of.data();  // (neither array is resized during a brick)
+  uint32_t* const touched = s.touched.data();
+  auto accept_code = [&](uint32_t lcode, const Cell* part) {
     ++s.counters.pairs;
-    const uint32_t lcode = kSpread5[X & bmask] | kSpread5[Y & bmask] << 1 | kSpread5[Z & bmask] << 2;
-    uint32_t slot = s.slot_of[lcode];
-    if (slot == kNoSlot) {
-      slot = static_cast<uint32_t>(s.touched.size());
-      s.slot_of[lcode] = slot;
-      s.touched.push_back(lcode);
-      if (attrs) s.slots.emplace_back();
-    }
+    // A new voxel takes the next slot, without a branch (whether a voxel is new is data-
+    // dependent and was mispredicted often): the code is written past the end of the touched
+    // list and counted only when new.
+    const uint32_t old_slot = slot_of[lcode];
+    const uint32_t n = static_cast<uint32_t>(s.ntouched);
+    const uint32_t is_new = static_cast<uint32_t>(old_slot == kNoSlot);
+    const uint32_t new_mask = 0u - is_new;
+    const uint32_t slot = (old_slot & ~new_mask) | (n & new_mask);
+    slot_of[lcode] = slot;
+    touched[n] = lcode;
+    s.ntouched += is_new;
     if (!attrs) return;
-    const Cell& cell = part ? *part : cell_of(X, Y, Z);
+    if (slot >= s.slots.size()) s.slots.resize(std::max<size_t>(2 * s.slots.size(), 1024));  // zeros
+    const Cell& cell = *part;
     const float area = cell.area;
     Slot& sl = s.slots[slot];
     const double w = area;
@@ -719,12 +730,21 @@ void process_brick(const Context& cx, uint64_t brick, const BinEntry* first, con
     sl.nw += w * cur_nw;
     sl.col += w * cur_col;
     sl.ti += w * cur_ti;
+    // The largest part's triangle (the first of equals; the first pair always), selected
+    // without a branch (a conditional here compiled to a mispredicted branch).
+    const uint32_t larger_mask =
+        0u - (static_cast<uint32_t>(area > sl.best_area) | static_cast<uint32_t>(sl.count == 0));
+    sl.best_tri = (cur_tri & larger_mask) | (sl.best_tri & ~larger_mask);
+    sl.best_area = std::max(sl.best_area, area);  // area >= 0, and best_area is 0 while count is
     ++sl.count;
-    // The largest part's triangle (the first of equals), selected without a branch.
-    const bool larger = area > sl.best_area;
-    sl.best_tri = larger ? cur_tri : sl.best_tri;
-    sl.best_area = larger ? area : sl.best_area;
     s.pairs.push_back({slot, cur_tri, cell.first, cell.count});
+  };
+  auto local_code = [&](uint32_t X, uint32_t Y, uint32_t Z) {
+    return kSpread5[X & bmask] | kSpread5[Y & bmask] << 1 | kSpread5[Z & bmask] << 2;
+  };
+  // The same from voxel coordinates; \p part looked up when null.
+  auto accept = [&](uint32_t X, uint32_t Y, uint32_t Z, const Cell* part = nullptr) {
+    accept_code(local_code(X, Y, Z), attrs && part == nullptr ? &cell_of(X, Y, Z) : part);
   };
 
   // Cuts the triangle into its parts per leaf voxel of the range (slabs along x, then y, then
@@ -853,6 +873,8 @@ void process_brick(const Context& cx, uint64_t brick, const BinEntry* first, con
     int64_t ecs[3];
     for (int i = 0; i < 3; ++i) ecs[i] = ec[i] + t.ecrit[w][i] * S;
     uint32_t q[3];
+    // Cells per step along w in the range's cell array.
+    const int64_t wstride = w == 0 ? 1 : (w == 1 ? static_cast<int64_t>(rn[0]) : static_cast<int64_t>(rn[0]) * rn[1]);
     for (uint32_t cv = r0[v]; cv <= r1[v]; ++cv)
       for (uint32_t cu = r0[u]; cu <= r1[u]; ++cu) {
         if (column_test) {
@@ -873,16 +895,32 @@ void process_brick(const Context& cx, uint64_t brick, const BinEntry* first, con
         if (k0 > k1) continue;
         q[u] = cu;
         q[v] = cv;
+        // The column's share of the local code and of the cell index, once per column.
+        q[w] = r0[w];
+        const uint32_t col_code = local_code(q[0], q[1], q[2]) & ~(kSpread5[r0[w] & bmask] << w);
+        const Cell* col_cells = attrs ? &cell_of(q[0], q[1], q[2]) - static_cast<int64_t>(r0[w]) * wstride : nullptr;
         for (uint32_t k = static_cast<uint32_t>(k0); k <= static_cast<uint32_t>(k1); ++k) {
+          ++s.counters.aabb;
+          const uint32_t lcode = col_code | kSpread5[k & bmask] << w;
+          const Cell* part = attrs ? col_cells + static_cast<int64_t>(k) * wstride : nullptr;
+          if (clip_shortcut && part->inside) {
+            ++s.counters.clip;
+            accept_code(lcode, part);
+            continue;
+          }
           q[w] = k;
-          try_voxel(q[0], q[1], q[2]);
+          const LatticeBox box{{static_cast<int64_t>(q[0]) << F, static_cast<int64_t>(q[1]) << F,
+                                static_cast<int64_t>(q[2]) << F},
+                               S};
+          if (cx.tests.pass(t, box, true, s.counters)) accept_code(lcode, part);
         }
       }
   }
 
   // Output in Morton order: the touched local codes, read back sorted from a bitmap.
-  std::vector<uint32_t>& order = s.touched;
+  const std::span<const uint32_t> order(s.touched.data(), s.ntouched);
   const size_t nv = order.size();
+  const std::span<Slot> slots(s.slots.data(), attrs ? nv : 0);
   for (const uint32_t code : order) s.bits[code >> 6] |= uint64_t{1} << (code & 63u);
   std::vector<uint32_t>& sorted = s.sorted;
   sorted.clear();
@@ -909,7 +947,7 @@ void process_brick(const Context& cx, uint64_t brick, const BinEntry* first, con
       sl.col += col;
       sl.ti += ti;
     }
-    for (Slot& sl : s.slots) {
+    for (Slot& sl : slots) {
       const bool weighted = sl.nw[3] > 0.0;
       const double nn[3] = {sl.nw[0], sl.nw[1], sl.nw[2]};
 
@@ -967,6 +1005,7 @@ void process_brick(const Context& cx, uint64_t brick, const BinEntry* first, con
     }
   }
   for (uint32_t code : order) s.slot_of[code] = kNoSlot;
+  if (!slots.empty()) std::memset(static_cast<void*>(slots.data()), 0, slots.size_bytes());
 }
 
 }  // namespace
@@ -1114,6 +1153,7 @@ VoxelSet voxelize(const VoxelizeInput& input, const VoxelizeOptions& options, Vo
     tbb::enumerable_thread_specific<Scratch> scratch([&] {
       Scratch s;
       s.slot_of.assign(local_voxels, kNoSlot);
+      s.touched.assign(local_voxels + 1, 0);
       s.bits.assign((local_voxels + 63) / 64, 0);
       return s;
     });
