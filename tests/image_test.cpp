@@ -201,6 +201,25 @@ TEST(Image, JpegLoadsAndTruncatedOrOtherStbFormatsAreRefused) {
   big[sof + 6] = big[sof + 8] = '\x60';
   const std::string huge = test::error_of([&] { read_image(put("huge.jpg", big), w, h); });
   EXPECT_NE(huge.find("60000x60000 image needs at least"), std::string::npos) << huge;
+  // A Huffman table of 300 symbols (a JPEG table has at most 256; stb_image writes one byte per
+  // symbol into a 257-byte array, found by fuzz_sky_image), whole and well framed, before the
+  // frame header and, as progressive JPEGs define tables, after the first scan.
+  std::string dht300("\xff\xc4\x01\x3f\x00", 5);
+  dht300 += std::string(14, '\0') + "\x96\x96" + std::string(300, '\x01');
+  ASSERT_EQ(dht300.size(), 2u + 0x13fu);
+  const size_t eoi = jpg.rfind("\xff\xd9");
+  ASSERT_NE(eoi, std::string::npos);
+  for (const std::string& bad : {jpg.substr(0, 2) + dht300 + jpg.substr(2), jpg.substr(0, eoi) + dht300 + jpg.substr(eoi)}) {
+    const std::string m = test::error_of([&] { read_image(put("dht.jpg", bad), w, h); });
+    EXPECT_NE(m.find("Huffman table of 300 symbols (at most 256)"), std::string::npos) << m;
+  }
+  // A table that runs past its segment, and a segment that runs past the end of the file.
+  std::string overrun("\xff\xc4\x00\x20\x00", 5);  // 200 symbols in a 32-byte segment
+  overrun += std::string(14, '\0') + "\x64\x64" + std::string(13, '\x01');
+  const std::string m1 = test::error_of([&] { read_image(put("dht.jpg", jpg.substr(0, 2) + overrun + jpg.substr(2)), w, h); });
+  EXPECT_NE(m1.find("Huffman table runs past its segment"), std::string::npos) << m1;
+  const std::string m2 = test::error_of([&] { read_image(put("dht.jpg", jpg.substr(0, 2) + dht300.substr(0, 40)), w, h); });
+  EXPECT_NE(m2.find("truncated or corrupt"), std::string::npos) << m2;
   // A TGA (no magic number; what fuzz_sky_image turned a 156-byte file into: 21504x2560
   // pixels of zeros), a BMP: not handed to stb_image, whatever the extension says.
   const std::string tga("\0\0\x0a\0\0\0\0\0\0\0\0\0\0\x54\0\x0a\x08\0", 18);

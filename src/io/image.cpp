@@ -319,6 +319,64 @@ void check_jpeg(const std::string& path, const std::string& data, int width, int
                                std::to_string(data.size()) + " (truncated or corrupt)");
 }
 
+/// Walks a JPEG's marker segments before stb_image 2.27 sees them and refuses a Huffman table
+/// (DHT) whose 16 code-length counts add up to more than 256 symbols: stb_image writes one
+/// size byte per symbol into a 257-byte array before it checks anything (out-of-bounds write,
+/// found by fuzz_sky_image), and a JPEG table holds at most 256 symbols. A DHT segment whose
+/// tables run past its own length, or any segment running past the end of the file, is refused
+/// as corrupt. Progressive JPEGs define tables between scans, so the entropy-coded data after
+/// each SOS is skipped (FF 00 is a stuffed byte, FF D0-D7 a restart marker; any other marker
+/// ends the scan) and, like stb_image, bytes between segments that are not a marker are skipped;
+/// the walk goes on to EOI. \p data must be a JPEG (is_jpeg).
+void check_jpeg_segments(const std::string& path, const std::string& data) {
+  const auto byte = [&](size_t i) { return static_cast<uint8_t>(data[i]); };
+  const auto fail = [&](size_t at, const std::string& what) {
+    return file_error(path, "cannot read JPEG: byte " + std::to_string(at) + ": " + what);
+  };
+  size_t at = 2;  // after SOI
+  while (at < data.size()) {
+    if (byte(at) != 0xff) {  // padding between segments: stb_image skips it too
+      ++at;
+      continue;
+    }
+    while (at < data.size() && byte(at) == 0xff) ++at;  // fill bytes
+    if (at >= data.size()) return;
+    const uint8_t marker = byte(at);
+    const size_t start = at - 1;
+    ++at;
+    if (marker == 0xd9) return;                                       // EOI
+    if (marker == 0x01 || (marker >= 0xd0 && marker <= 0xd8)) continue;  // no length field
+    if (data.size() - at < 2) throw fail(start, "truncated marker segment");
+    const size_t len = static_cast<size_t>(byte(at)) << 8 | byte(at + 1);
+    if (len < 2 || len > data.size() - at)
+      throw fail(start, "marker segment of " + std::to_string(len) + " bytes, the file has " +
+                            std::to_string(data.size() - at) + " left (truncated or corrupt)");
+    const size_t end = at + len;
+    if (marker == 0xc4) {
+      for (size_t t = at + 2; t < end;) {
+        if (end - t < 17) throw fail(t, "truncated Huffman table");
+        size_t symbols = 0;
+        for (size_t i = 1; i <= 16; ++i) symbols += byte(t + i);
+        if (symbols > 256)
+          throw fail(t, "Huffman table of " + std::to_string(symbols) + " symbols (at most 256)");
+        if (symbols > end - t - 17) throw fail(t, "Huffman table runs past its segment");
+        t += 17 + symbols;
+      }
+    }
+    at = end;
+    if (marker == 0xda) {  // entropy-coded data up to the next marker that is not RSTn
+      while (at + 1 < data.size()) {
+        if (byte(at) == 0xff) {
+          const uint8_t next = byte(at + 1);
+          if (next != 0x00 && next != 0xff && !(next >= 0xd0 && next <= 0xd7)) break;
+        }
+        ++at;
+      }
+      if (at + 1 >= data.size()) return;  // no end of scan: check_jpeg reports truncation
+    }
+  }
+}
+
 /// \p bytes with anything outside printable ASCII shown as '?' (chunk types in messages).
 std::string printable(std::string bytes) {
   for (char& c : bytes)
@@ -571,6 +629,7 @@ std::vector<Vec3> read_image(const std::string& path, int& width, int& height, c
   if (!png && !jpeg)
     throw file_error(path, "cannot read image: not a PNG, JPEG, Radiance (.hdr) or OpenEXR (.exr) file");
   if (png) check_png_chunks(path, bytes);
+  if (jpeg) check_jpeg_segments(path, bytes);
   int channels = 0;
   if (stbi_info_from_memory(reinterpret_cast<const stbi_uc*>(bytes.data()), static_cast<int>(bytes.size()), &width, &height,
                             &channels) &&
