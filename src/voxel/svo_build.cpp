@@ -20,6 +20,7 @@
 #include <string>
 #include <vector>
 
+#include "core/memory.h"
 #include "specula/error.h"
 #include "specula/svo.h"
 #include "specula/timer.h"
@@ -407,6 +408,10 @@ SparseVoxelOctree SparseVoxelOctree::build_from(const VoxelSet& set, std::vector
   }
   const size_t node_count = svo.level_offsets_.back();
   // Written once each below (no zero-fill: the pages are first touched by the parallel pass).
+  svo.nodes_.reserve(node_count);
+  svo.inner_attrs_.reserve(node_count);
+  advise_huge_pages(svo.nodes_.data(), node_count * sizeof(SvoNode));
+  advise_huge_pages(svo.inner_attrs_.data(), node_count * sizeof(VoxelAttributes));
   svo.nodes_.resize(node_count);
   svo.inner_attrs_.resize(node_count);
   const std::unique_ptr<uint32_t[]> counts(new uint32_t[node_count]);  // voxels below each node

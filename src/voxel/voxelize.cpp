@@ -47,6 +47,7 @@
 #include <type_traits>
 #include <utility>
 
+#include "core/memory.h"
 #include "specula/error.h"
 #include "specula/timer.h"
 #include "voxel/tri_box.h"
@@ -1169,6 +1170,8 @@ VoxelSet voxelize(const VoxelizeInput& input, const VoxelizeOptions& options, Vo
       const double bound = std::min(est.voxel_bound, 1e15);
       result.codes.reserve(static_cast<size_t>(bound));
       if (options.attributes) result.attrs.reserve(static_cast<size_t>(bound));
+      advise_huge_pages(result.codes.data(), result.codes.capacity() * sizeof(uint64_t));
+      advise_huge_pages(result.attrs.data(), result.attrs.capacity() * sizeof(VoxelAttributes));
     } catch (const std::bad_alloc&) {  // no such address space (--no-memory-limit): grow instead
     }
     std::mutex mu;
