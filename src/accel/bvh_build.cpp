@@ -44,6 +44,7 @@
 #include "accel/bvh_optimize.h"
 #include "accel/triangles.h"
 #include "accel/watertight.h"
+#include "core/memory.h"
 #include "specula/bvh.h"
 #include "specula/error.h"
 #include "specula/timer.h"
@@ -990,6 +991,7 @@ Bvh Bvh::build(const TriangleInput& input, const BvhOptions& options, BuildInfo*
     const auto fill_blocks = [&] {
       auto& tri4 = bvh.tri4_;
       tri4.reserve(block_count);
+      advise_huge_pages(tri4.data(), block_count * sizeof(BvhTriangle4));
       const uint32_t* const idx = input.indices.data();
       const Vec3* const pos = input.positions.data();
       const size_t vcount = input.positions.size();
@@ -1061,6 +1063,7 @@ Bvh Bvh::build(const TriangleInput& input, const BvhOptions& options, BuildInfo*
       // wide node per 4.9 / 9.9 / 26.5 binary nodes at W = 4 / 8 / 16. Reserving for W - 1
       // regrew the array (copying every node) with the greedy collapse; this bound never does.
       wide.reserve(bin.size() / std::min(W - 1, 4) + 1);
+      advise_huge_pages(wide.data(), wide.capacity() * sizeof(Node));
       // SAH-optimal collapse (Ylitie, Karras, Laine 2017, "Efficient Incoherent Ray Traversal on
       // GPUs Through Compressed Wide BVHs", section 3.1): cost[j][k - 1] is the least SAH cost
       // of the binary subtree j as at most k children of a wide node, each child a wide node
