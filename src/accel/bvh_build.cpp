@@ -702,6 +702,7 @@ class BuildScratch {
     if (b.bytes < bytes) {
       b.p.reset(static_cast<unsigned char*>(::operator new(bytes, std::align_val_t{64})));
       b.bytes = bytes;
+      advise_huge_pages(b.p.get(), bytes);  // first touched by this build
     }
     return b.p.get();
   }
@@ -904,6 +905,8 @@ Bvh Bvh::build(const TriangleInput& input, const BvhOptions& options, BuildInfo*
     // only the used part is ever read; every used node is written by the builder.
     static_assert(alignof(BvhNode) <= 64);
     BvhNode* const node_storage = static_cast<BvhNode*>(scratch->get(1, max_nodes * sizeof(BvhNode)));
+    bvh.prim_ids_.reserve(valid);
+    advise_huge_pages(bvh.prim_ids_.data(), size_t{valid} * sizeof(uint32_t));
     bvh.prim_ids_.resize(valid);
     // BvhQuality::High builds down to single triangles: reinsertion moves whole subtrees, so
     // it can only regroup triangles that are leaves of their own, and the collapse below makes
@@ -913,6 +916,8 @@ Bvh Bvh::build(const TriangleInput& input, const BvhOptions& options, BuildInfo*
     BvhBuilder builder(tree_options, refs, node_storage, bvh.prim_ids_.data());
     builder.build_root(valid, root.box, root.cbox, parallel && valid > kTaskThreshold);
     const uint32_t used = builder.node_count();
+    bvh.nodes_.reserve(used);
+    advise_huge_pages(bvh.nodes_.data(), size_t{used} * sizeof(BvhNode));
     if (!parallel || valid <= kTaskThreshold) {
       bvh.nodes_.assign(node_storage, node_storage + used);
     } else {
@@ -1288,6 +1293,8 @@ std::span<const BvhTriangle> Bvh::triangles() const {
     for (const uint32_t id : prim_ids_) max_id = std::max(max_id, id);
     std::vector<uint32_t> order(size_t{max_id} + 1);
     for (size_t i = 0; i < prim_ids_.size(); ++i) order[prim_ids_[i]] = static_cast<uint32_t>(i);
+    c.tris.reserve(prim_ids_.size());
+    advise_huge_pages(c.tris.data(), prim_ids_.size() * sizeof(BvhTriangle));
     c.tris.resize(prim_ids_.size());
     for (const BvhTriangle4& blk : tri4_)
       for (int lane = 0; lane < 4; ++lane) {
