@@ -193,6 +193,11 @@ TEST(Image, JpegLoadsAndTruncatedOrOtherStbFormatsAreRefused) {
   const std::string cut = test::error_of([&] { read_image(put("cut.jpg", jpg.substr(0, jpg.size() - 20)), w, h); });
   EXPECT_NE(cut.find("cut.jpg"), std::string::npos) << cut;
   EXPECT_NE(cut.find("truncated"), std::string::npos) << cut;
+  // An end-of-image marker with no scan before it (the frame's segments, then EOI).
+  const size_t sos = jpg.find("\xff\xda");
+  ASSERT_NE(sos, std::string::npos);
+  const std::string noscan = test::error_of([&] { read_image(put("noscan.jpg", jpg.substr(0, sos) + "\xff\xd9"), w, h); });
+  EXPECT_NE(noscan.find("no end-of-image marker after the image data"), std::string::npos) << noscan;
   // The same header declaring 60000x60000 pixels (SOF0 height and width fields).
   std::string big = jpg;
   const size_t sof = big.find("\xff\xc0");

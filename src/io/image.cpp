@@ -302,16 +302,11 @@ std::vector<Vec3> decode_radiance(const std::string& path, const InputLimits& li
 bool is_png(const std::string& data) { return data.compare(0, 8, "\x89PNG\r\n\x1a\n", 8) == 0; }
 bool is_jpeg(const std::string& data) { return data.compare(0, 3, "\xff\xd8\xff", 3) == 0; }
 
-/// JPEG before stb_image 2.27 decodes it: stb_image reads zeros past the end of a truncated
-/// file and returns a silently wrong image, so the file must end its first scan: an EOI marker
-/// (FF D9, which entropy-coded data cannot contain) after the first SOS (FF DA). And a file too
-/// small for the size it declares is refused: every 8x8 block of a component costs at least
-/// one bit (its DC code), so w x h pixels need w h / 512 bytes; a quarter of that is required.
-void check_jpeg(const std::string& path, const std::string& data, int width, int height) {
-  const size_t sos = data.find("\xff\xda", 2, 2);
-  const size_t eoi = data.rfind("\xff\xd9", std::string::npos, 2);
-  if (sos == std::string::npos || eoi == std::string::npos || eoi < sos)
-    throw file_error(path, "cannot read JPEG: no end-of-image marker after the image data (truncated)");
+/// A JPEG too small for the size it declares is refused before stb_image 2.27 decodes it:
+/// every 8x8 block of a component costs at least one bit (its DC code), so w x h pixels need
+/// w h / 512 bytes; a quarter of that is required (stb_image reads zeros past the end of the
+/// data and would return a silently wrong image).
+void check_jpeg_size(const std::string& path, const std::string& data, int width, int height) {
   const uint64_t need = static_cast<uint64_t>(width) * static_cast<uint64_t>(height) / 2048;
   if (data.size() < need)
     throw file_error(path, "cannot read JPEG: a " + std::to_string(width) + "x" + std::to_string(height) +
@@ -327,24 +322,33 @@ void check_jpeg(const std::string& path, const std::string& data, int width, int
 /// as corrupt. Progressive JPEGs define tables between scans, so the entropy-coded data after
 /// each SOS is skipped (FF 00 is a stuffed byte, FF D0-D7 a restart marker; any other marker
 /// ends the scan) and, like stb_image, bytes between segments that are not a marker are skipped;
-/// the walk goes on to EOI. \p data must be a JPEG (is_jpeg).
+/// the walk goes on to EOI. The file must end its first scan with that EOI (FF D9, which
+/// entropy-coded data cannot contain): stb_image reads zeros past the end of a truncated file
+/// and returns a silently wrong image. \p data must be a JPEG (is_jpeg).
 void check_jpeg_segments(const std::string& path, const std::string& data) {
   const auto byte = [&](size_t i) { return static_cast<uint8_t>(data[i]); };
   const auto fail = [&](size_t at, const std::string& what) {
     return file_error(path, "cannot read JPEG: byte " + std::to_string(at) + ": " + what);
   };
-  size_t at = 2;  // after SOI
+  const auto truncated = [&] {
+    return file_error(path, "cannot read JPEG: no end-of-image marker after the image data (truncated)");
+  };
+  bool scanned = false;  // an SOS segment was seen
+  size_t at = 2;         // after SOI
   while (at < data.size()) {
     if (byte(at) != 0xff) {  // padding between segments: stb_image skips it too
       ++at;
       continue;
     }
     while (at < data.size() && byte(at) == 0xff) ++at;  // fill bytes
-    if (at >= data.size()) return;
+    if (at >= data.size()) break;
     const uint8_t marker = byte(at);
     const size_t start = at - 1;
     ++at;
-    if (marker == 0xd9) return;                                       // EOI
+    if (marker == 0xd9) {  // EOI: the end, after the image data or (no SOS) instead of it
+      if (!scanned) throw truncated();
+      return;
+    }
     if (marker == 0x01 || (marker >= 0xd0 && marker <= 0xd8)) continue;  // no length field
     if (data.size() - at < 2) throw fail(start, "truncated marker segment");
     const size_t len = static_cast<size_t>(byte(at)) << 8 | byte(at + 1);
@@ -365,6 +369,7 @@ void check_jpeg_segments(const std::string& path, const std::string& data) {
     }
     at = end;
     if (marker == 0xda) {  // entropy-coded data up to the next marker that is not RSTn
+      scanned = true;
       while (at + 1 < data.size()) {
         if (byte(at) == 0xff) {
           const uint8_t next = byte(at + 1);
@@ -372,9 +377,10 @@ void check_jpeg_segments(const std::string& path, const std::string& data) {
         }
         ++at;
       }
-      if (at + 1 >= data.size()) return;  // no end of scan: check_jpeg reports truncation
+      if (at + 1 >= data.size()) break;  // no end of scan
     }
   }
+  throw truncated();  // the data ended before EOI
 }
 
 /// \p bytes with anything outside printable ASCII shown as '?' (chunk types in messages).
@@ -634,7 +640,7 @@ std::vector<Vec3> read_image(const std::string& path, int& width, int& height, c
   if (stbi_info_from_memory(reinterpret_cast<const stbi_uc*>(bytes.data()), static_cast<int>(bytes.size()), &width, &height,
                             &channels) &&
       width > 0 && height > 0) {
-    if (jpeg) check_jpeg(path, bytes, width, height);
+    if (jpeg) check_jpeg_size(path, bytes, width, height);
     check_decode_budget(path, limits, static_cast<uint64_t>(width) * static_cast<uint64_t>(height) * (4 + sizeof(Vec3)),
                         std::to_string(width) + "x" + std::to_string(height) + " image");
   }
