@@ -16,7 +16,9 @@ void advise_huge_pages(const void* p, std::size_t bytes) noexcept {
   const std::uintptr_t lo = (begin + kHuge - 1) & ~(kHuge - 1), hi = (begin + bytes) & ~(kHuge - 1);
   if (hi <= lo) return;
   // Advice only: an older kernel or one built without THP answers EINVAL, which changes nothing.
-  (void)madvise(reinterpret_cast<void*>(lo), hi - lo, MADV_HUGEPAGE);
+  // (The aligned start as an offset from p: no integer-to-pointer cast.)
+  void* const start = const_cast<char*>(static_cast<const char*>(p)) + (lo - begin);
+  (void)madvise(start, hi - lo, MADV_HUGEPAGE);
 #else
   (void)p;
   (void)bytes;
