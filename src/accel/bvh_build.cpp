@@ -702,7 +702,7 @@ class BuildScratch {
     if (b.bytes < bytes) {
       b.p.reset(static_cast<unsigned char*>(::operator new(bytes, std::align_val_t{64})));
       b.bytes = bytes;
-      advise_huge_pages(b.p.get(), bytes);  // first touched by this build
+      prepare_for_writes(b.p.get(), bytes);  // first touched by this build
     }
     return b.p.get();
   }
@@ -906,7 +906,7 @@ Bvh Bvh::build(const TriangleInput& input, const BvhOptions& options, BuildInfo*
     static_assert(alignof(BvhNode) <= 64);
     BvhNode* const node_storage = static_cast<BvhNode*>(scratch->get(1, max_nodes * sizeof(BvhNode)));
     bvh.prim_ids_.reserve(valid);
-    advise_huge_pages(bvh.prim_ids_.data(), size_t{valid} * sizeof(uint32_t));
+    prepare_for_writes(bvh.prim_ids_.data(), size_t{valid} * sizeof(uint32_t));
     bvh.prim_ids_.resize(valid);
     // BvhQuality::High builds down to single triangles: reinsertion moves whole subtrees, so
     // it can only regroup triangles that are leaves of their own, and the collapse below makes
@@ -917,7 +917,7 @@ Bvh Bvh::build(const TriangleInput& input, const BvhOptions& options, BuildInfo*
     builder.build_root(valid, root.box, root.cbox, parallel && valid > kTaskThreshold);
     const uint32_t used = builder.node_count();
     bvh.nodes_.reserve(used);
-    advise_huge_pages(bvh.nodes_.data(), size_t{used} * sizeof(BvhNode));
+    prepare_for_writes(bvh.nodes_.data(), size_t{used} * sizeof(BvhNode));
     if (!parallel || valid <= kTaskThreshold) {
       bvh.nodes_.assign(node_storage, node_storage + used);
     } else {
@@ -996,7 +996,7 @@ Bvh Bvh::build(const TriangleInput& input, const BvhOptions& options, BuildInfo*
     const auto fill_blocks = [&] {
       auto& tri4 = bvh.tri4_;
       tri4.reserve(block_count);
-      advise_huge_pages(tri4.data(), block_count * sizeof(BvhTriangle4));
+      prepare_for_writes(tri4.data(), block_count * sizeof(BvhTriangle4));
       const uint32_t* const idx = input.indices.data();
       const Vec3* const pos = input.positions.data();
       const size_t vcount = input.positions.size();
@@ -1068,7 +1068,7 @@ Bvh Bvh::build(const TriangleInput& input, const BvhOptions& options, BuildInfo*
       // wide node per 4.9 / 9.9 / 26.5 binary nodes at W = 4 / 8 / 16. Reserving for W - 1
       // regrew the array (copying every node) with the greedy collapse; this bound never does.
       wide.reserve(bin.size() / std::min(W - 1, 4) + 1);
-      advise_huge_pages(wide.data(), wide.capacity() * sizeof(Node));
+      prepare_for_writes(wide.data(), wide.capacity() * sizeof(Node));
       // SAH-optimal collapse (Ylitie, Karras, Laine 2017, "Efficient Incoherent Ray Traversal on
       // GPUs Through Compressed Wide BVHs", section 3.1): cost[j][k - 1] is the least SAH cost
       // of the binary subtree j as at most k children of a wide node, each child a wide node
@@ -1294,7 +1294,7 @@ std::span<const BvhTriangle> Bvh::triangles() const {
     std::vector<uint32_t> order(size_t{max_id} + 1);
     for (size_t i = 0; i < prim_ids_.size(); ++i) order[prim_ids_[i]] = static_cast<uint32_t>(i);
     c.tris.reserve(prim_ids_.size());
-    advise_huge_pages(c.tris.data(), prim_ids_.size() * sizeof(BvhTriangle));
+    prepare_for_writes(c.tris.data(), prim_ids_.size() * sizeof(BvhTriangle));
     c.tris.resize(prim_ids_.size());
     for (const BvhTriangle4& blk : tri4_)
       for (int lane = 0; lane < 4; ++lane) {

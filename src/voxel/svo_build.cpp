@@ -410,8 +410,8 @@ SparseVoxelOctree SparseVoxelOctree::build_from(const VoxelSet& set, std::vector
   // Written once each below (no zero-fill: the pages are first touched by the parallel pass).
   svo.nodes_.reserve(node_count);
   svo.inner_attrs_.reserve(node_count);
-  advise_huge_pages(svo.nodes_.data(), node_count * sizeof(SvoNode));
-  advise_huge_pages(svo.inner_attrs_.data(), node_count * sizeof(VoxelAttributes));
+  prepare_for_writes(svo.nodes_.data(), node_count * sizeof(SvoNode));
+  prepare_for_writes(svo.inner_attrs_.data(), node_count * sizeof(VoxelAttributes));
   svo.nodes_.resize(node_count);
   svo.inner_attrs_.resize(node_count);
   const std::unique_ptr<uint32_t[]> counts(new uint32_t[node_count]);  // voxels below each node

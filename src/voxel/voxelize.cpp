@@ -1153,9 +1153,14 @@ VoxelSet voxelize(const VoxelizeInput& input, const VoxelizeOptions& options, Vo
     const size_t local_voxels = size_t{1} << (3 * chk.brick_bits);
     tbb::enumerable_thread_specific<Scratch> scratch([&] {
       Scratch s;
-      s.slot_of.assign(local_voxels, kNoSlot);
-      s.touched.assign(local_voxels + 1, 0);
-      s.bits.assign((local_voxels + 63) / 64, 0);
+      const auto fill = [](auto& v, size_t n, auto value) {
+        v.reserve(n);
+        prepare_for_writes(v.data(), n * sizeof(value));  // all written at once below
+        v.assign(n, value);
+      };
+      fill(s.slot_of, local_voxels, kNoSlot);
+      fill(s.touched, local_voxels + 1, uint32_t{0});
+      fill(s.bits, (local_voxels + 63) / 64, uint64_t{0});
       return s;
     });
     // Bricks in Morton order, handed out one at a time; each output is appended to the result
@@ -1170,8 +1175,8 @@ VoxelSet voxelize(const VoxelizeInput& input, const VoxelizeOptions& options, Vo
       const double bound = std::min(est.voxel_bound, 1e15);
       result.codes.reserve(static_cast<size_t>(bound));
       if (options.attributes) result.attrs.reserve(static_cast<size_t>(bound));
-      advise_huge_pages(result.codes.data(), result.codes.capacity() * sizeof(uint64_t));
-      advise_huge_pages(result.attrs.data(), result.attrs.capacity() * sizeof(VoxelAttributes));
+      prepare_for_writes(result.codes.data(), result.codes.capacity() * sizeof(uint64_t));
+      prepare_for_writes(result.attrs.data(), result.attrs.capacity() * sizeof(VoxelAttributes));
     } catch (const std::bad_alloc&) {  // no such address space (--no-memory-limit): grow instead
     }
     std::mutex mu;
