@@ -49,7 +49,8 @@ for ((r = 1; r <= rounds; ++r)); do
     [[ $which == new ]] && bin=$new
     line=$(taskset -c "$cpu" "$bin" "$@" 2>&1 | grep -E -m1 -- "$regex" || true)
     [[ -n $line ]] || { echo "ab.sh: no line matching '$regex' from $bin $*" >&2; exit 1; }
-    ms=$(grep -E -o '[0-9]+(\.[0-9]+)? ms' <<<"$line" | head -1 | cut -d' ' -f1)
+    ms=$(grep -E -o '[0-9]+(\.[0-9]+)? ms' <<<"$line" | head -1 | cut -d' ' -f1 || true)
+    [[ -n $ms ]] || { echo "ab.sh: no \"N ms\" figure in: $line" >&2; exit 1; }
     printf '%-4s %s\n' "$which" "$line"
     if [[ $which == old ]]; then t_old+=("$ms"); else t_new+=("$ms"); fi
   done
