@@ -123,7 +123,8 @@ VoxelSet voxelize(const VoxelizeInput& input, const VoxelizeOptions& options, Vo
 std::vector<TriangleAttributes> triangle_attributes(const Scene& scene);
 
 /// Upper bound, in bytes, of what voxelize() would allocate for \p input at \p options (the
-/// number it compares with the limit). Also validates the input like voxelize().
+/// number it compares with the limit: a quick bound when that is within the limit, else a
+/// tighter one). Also validates the input like voxelize().
 uint64_t voxelize_memory_estimate(const VoxelizeInput& input, const VoxelizeOptions& options);
 
 /// Default memory limit: half the physical memory (4 GiB when it cannot be determined).

@@ -259,8 +259,9 @@ struct PerVoxelBytes {
 /// units per lattice unit): the smaller of its bounding-box voxel count (closed boxes: a
 /// range [lo, hi] touches floor(hi) - ceil(lo) + 2 voxels at most) and the volume of the
 /// triangle grown by a voxel diagonal r = sqrt(3) (Steiner: 2 r A + pi r^2 P / 2 + 4/3 pi r^3),
-/// which contains every voxel the triangle touches.
-double touched_bound(const int64_t (&l)[3][3], int shift, double scale, double res) {
+/// which contains every voxel the triangle touches. Without \p refine, the box count alone
+/// (integers only; a looser bound).
+double touched_bound(const int64_t (&l)[3][3], int shift, double scale, double res, bool refine) {
   // The box on the lattice integers: lo / 2^shift has the same ceil and floor as the double
   // lo * scale (scale = 2^-shift, exact), so this is the double formula without rounding.
   const int64_t cells = static_cast<int64_t>(res);
@@ -272,7 +273,7 @@ double touched_bound(const int64_t (&l)[3][3], int shift, double scale, double r
     box *= static_cast<double>(std::max<int64_t>(1, last - first + 1));
   }
   // The Steiner volume is at least 4/3 pi r^3 > 21.7: small boxes need no square roots.
-  if (box <= 21.0) return box;
+  if (box <= 21.0 || !refine) return box;
   double a[3], b[3], c[3];
   for (int k = 0; k < 3; ++k) {
     a[k] = static_cast<double>(l[0][k]) * scale;
@@ -342,8 +343,10 @@ struct BinEntry {
 /// is as large as the positions themselves).
 double lattice_bytes(const VoxelizeInput& in) { return static_cast<double>(in.positions.size()) * sizeof(LatticePoint); }
 
+/// \p refine: per triangle the smaller of the box and Steiner bounds (touched_bound), else the
+/// box alone: a larger, quicker bound (it skips three square roots per triangle and level).
 Estimate estimate(const VoxelizeInput& in, const std::vector<LatticePoint>& lat, const Checked& c,
-                  const VoxelizeOptions& o) {
+                  const VoxelizeOptions& o, bool refine) {
   const double leaf_res = std::ldexp(1.0, o.depth);
   const double to_leaf = std::ldexp(1.0, o.depth - kLatticeBits);
   const double brick_res = std::ldexp(1.0, c.brick_level);
@@ -358,8 +361,8 @@ Estimate estimate(const VoxelizeInput& in, const std::vector<LatticePoint>& lat,
       [&](const tbb::blocked_range<size_t>& r, Sums acc) {
         for (size_t t = r.begin(); t < r.end(); ++t) {
           const LatticeTri l(in, lat, t);
-          acc.pairs += touched_bound(l.v, kLatticeBits - o.depth, to_leaf, leaf_res);
-          acc.brick_pairs += touched_bound(l.v, kLatticeBits - c.brick_level, to_brick, brick_res);
+          acc.pairs += touched_bound(l.v, kLatticeBits - o.depth, to_leaf, leaf_res, refine);
+          acc.brick_pairs += touched_bound(l.v, kLatticeBits - c.brick_level, to_brick, brick_res, refine);
         }
         return acc;
       },
@@ -381,6 +384,19 @@ Estimate estimate(const VoxelizeInput& in, const std::vector<LatticePoint>& lat,
   if (o.attributes)  // pair records and clipped polygons of the bricks in flight
     e.bytes += std::min(e.pair_bound, c.threads * brick_voxels * 8.0) * (sizeof(PairRec) + 9 * sizeof(Float4));
   return e;
+}
+
+/// The estimate compared with \p limit: the quick (box) bound when it is within the limit
+/// (so is the tighter one then, which is never larger), else the tighter bound.
+Estimate bound_memory(const VoxelizeInput& in, const std::vector<LatticePoint>& lat, const Checked& c,
+                      const VoxelizeOptions& o, uint64_t limit) {
+  const Estimate quick = estimate(in, lat, c, o, false);
+  return quick.bytes <= static_cast<double>(limit) ? quick : estimate(in, lat, c, o, true);
+}
+
+/// The memory limit in force: the option, or the default when it is 0.
+uint64_t limit_of(const VoxelizeOptions& o) {
+  return o.memory_limit == 0 ? default_voxelize_memory_limit() : o.memory_limit;
 }
 
 /// Spreads 5 bits so bit i lands on bit 3i (Morton code inside a brick).
@@ -1015,7 +1031,7 @@ uint64_t voxelize_memory_estimate(const VoxelizeInput& input, const VoxelizeOpti
   const Checked c = check(input, options);
   tbb::task_arena arena(c.threads);
   double b = 0;
-  arena.execute([&] { b = estimate(input, snap_positions(input, c.grid), c, options).bytes; });
+  arena.execute([&] { b = bound_memory(input, snap_positions(input, c.grid), c, options, limit_of(options)).bytes; });
   return b >= 1.8e19 ? std::numeric_limits<uint64_t>::max() : static_cast<uint64_t>(b);
 }
 
@@ -1025,7 +1041,7 @@ VoxelSet voxelize(const VoxelizeInput& input, const VoxelizeOptions& options, Vo
   const Checked chk = check(input, options);
   st.threads = chk.threads;
   st.triangles = chk.triangles;
-  st.memory_limit = options.memory_limit == 0 ? default_voxelize_memory_limit() : options.memory_limit;
+  st.memory_limit = limit_of(options);
   auto refuse = [&](double bytes, double pairs, double voxels) {
     char buf[512];
     std::snprintf(buf, sizeof buf,
@@ -1044,7 +1060,7 @@ VoxelSet voxelize(const VoxelizeInput& input, const VoxelizeOptions& options, Vo
   arena.execute([&] {
     // 2. snap, estimate and limit.
     const std::vector<LatticePoint> lat = snap_positions(input, chk.grid);
-    const Estimate est = estimate(input, lat, chk, options);
+    const Estimate est = bound_memory(input, lat, chk, options, st.memory_limit);
     st.estimate_bytes = est.bytes >= 1.8e19 ? std::numeric_limits<uint64_t>::max() : static_cast<uint64_t>(est.bytes);
     if (est.bytes > static_cast<double>(st.memory_limit)) refuse(est.bytes, est.pair_bound, est.voxel_bound);
     st.prepare_ms = total.ms();
