@@ -501,6 +501,43 @@ TEST(Render, StatsProgressAndAovs) {
   EXPECT_EQ(std::memcmp(plain.color.data(), f.color.data(), f.color.size() * sizeof(Vec3)), 0);
 }
 
+TEST(Render, RenderingIntoAReusedFilmGivesTheFreshImage) {
+  Scene s = base_scene();
+  add_quad(s, "plane", {0, 0, 0}, {0, 0, 5}, {5, 0, 0}, s.add_material(diffuse(Vec3{0.5f})));
+  s.lights.push_back(point_light({0, 2, 0}, 4.0f));
+  s.cameras.push_back(look({0, 1.5f, 3}, {0, 0, 0}));
+  const auto tracer = make_tracer(s);
+  RenderOptions o = small(41, 31);
+  o.aovs = parse_aovs("depth,normal,prim,cost");
+  const Film fresh = render_whitted(s, *tracer, o);
+  // A film holding another image of the same size (NaN colours, stale planes) and one of
+  // another size: both must end up exactly as the fresh render.
+  Film same;
+  same.width = 41;
+  same.height = 31;
+  same.color.assign(41 * 31, Vec3{std::nanf("")});
+  same.depth.assign(41 * 31, -1.0f);
+  same.normal.assign(41 * 31, Vec3{7.0f});
+  same.prim_id.assign(41 * 31, 12345u);
+  same.cost.assign(41 * 31, 99u);
+  Film other = render_whitted(s, *tracer, small(13, 9));
+  for (Film* f : {&same, &other}) {
+    render_whitted(s, *tracer, o, *f);
+    EXPECT_EQ(f->width, 41);
+    EXPECT_EQ(f->height, 31);
+    ASSERT_EQ(f->color.size(), fresh.color.size());
+    EXPECT_EQ(std::memcmp(f->color.data(), fresh.color.data(), fresh.color.size() * sizeof(Vec3)), 0);
+    EXPECT_EQ(f->depth, fresh.depth);
+    EXPECT_EQ(f->normal, fresh.normal);
+    EXPECT_EQ(f->prim_id, fresh.prim_id);
+    EXPECT_EQ(f->cost, fresh.cost);
+  }
+  // AOVs no longer requested leave no stale planes behind.
+  render_whitted(s, *tracer, small(41, 31), same);
+  EXPECT_TRUE(same.depth.empty() && same.normal.empty() && same.prim_id.empty() && same.cost.empty());
+  EXPECT_EQ(std::memcmp(same.color.data(), fresh.color.data(), fresh.color.size() * sizeof(Vec3)), 0);
+}
+
 TEST(Render, ParseAovs) {
   EXPECT_EQ(parse_aovs("").size(), 0u);
   const auto a = parse_aovs("depth,prim_id,primid,Cost");

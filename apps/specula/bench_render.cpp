@@ -97,7 +97,7 @@ double timed_render(const Scene& scene, const Tracer& tracer, const specula::Ren
   for (int f = 0; f < frames; ++f) {
     stats = {};
     const double c0 = process_cpu_ms();
-    film = render_whitted(scene, tracer, ro, &stats);
+    render_whitted(scene, tracer, ro, film, &stats);  // one film for every frame, as a viewer would
     cpu.push_back(process_cpu_ms() - c0);
     ms.push_back(stats.render_ms);
   }
@@ -307,14 +307,9 @@ int bench_render(const BenchRenderOptions& options) {
       ro.camera = camera;
       ro.width = size.width;
       ro.height = size.height;
-      std::vector<double> ms;
+      Film film;
       RenderStats stats;
-      for (int f = 0; f < options.frames; ++f) {
-        stats = {};
-        (void)render_whitted(scene, *tracer, ro, &stats);
-        ms.push_back(stats.render_ms);
-      }
-      const double t = median(ms);
+      const double t = timed_render(scene, *tracer, ro, options.frames, film, stats);
       const double fps = 1000.0 / std::max(t, 1e-9);
       const double rays = static_cast<double>(stats.total_rays());
       const std::string size_str = std::to_string(size.width) + "x" + std::to_string(size.height);

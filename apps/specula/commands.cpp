@@ -196,7 +196,7 @@ int render(const RenderOptions& options) {
   RenderStats stats;
   for (int frame = 0; frame < options.frames; ++frame) {
     stats = {};
-    film = render_whitted(scene, *tracer, ro, &stats);
+    render_whitted(scene, *tracer, ro, film, &stats);  // one film for every frame, as a viewer would
     times.push_back(stats.render_ms);
   }
   progress.finish();

@@ -84,6 +84,13 @@ std::vector<Vec3> shadow_transmittance(const Scene& scene);
 Film render_whitted(const Scene& scene, const Tracer& tracer, const RenderOptions& options,
                     RenderStats* stats = nullptr);
 
+/// The same image rendered into \p film, whose planes' storage is reused when they already have
+/// the right size: a frame loop or a viewer renders every frame into one film, with no
+/// allocation, fill or page faults per frame. Planes of AOVs not requested are emptied. The
+/// film is left unspecified when this throws.
+void render_whitted(const Scene& scene, const Tracer& tracer, const RenderOptions& options, Film& film,
+                    RenderStats* stats = nullptr);
+
 /// Dielectric Fresnel reflectance for unpolarised light (exact formula). cos_i is the cosine
 /// of the incident angle (>= 0), eta = n_incident / n_transmitted. Returns 1 on total
 /// internal reflection.
