@@ -29,6 +29,7 @@
 
 #include "core/hash.h"
 #include "render/fresnel.h"
+#include "render/lighting.h"
 #include "render/phong.h"
 #include "render/sky.h"
 #include "specula/error.h"
@@ -234,6 +235,20 @@ struct Scratch {
   std::vector<Vec3> shadow_t;
   size_t n_shadow = 0;
   std::vector<Vec3> accum;
+  /// The wavefront's additions to accum in shading order (render_tile adds them after the
+  /// lights are evaluated, so every pixel's sum keeps its order): a sky or emission + ambient
+  /// term, then for a lit hit (lit != kNotLit) its lights.
+  struct Addition {
+    Vec3 add;
+    uint32_t pixel;
+    uint32_t lit;  ///< index in `lit`, or kNotLit
+  };
+  static constexpr uint32_t kNotLit = 0xFFFFFFFFu;
+  std::vector<Addition> additions;
+  size_t n_additions = 0;
+  render::LitPoints lit;  ///< the wavefront's lit hits
+  std::vector<uint32_t> lit_global;   ///< per lit hit: its pixel's index in the film
+  std::vector<uint16_t> lit_history;  ///< per lit hit: its path's history
   std::vector<Vec3> columns;  ///< per tile column: PinholeCamera::column of its pixel centre
   std::vector<uint64_t> cost;
   std::vector<uint32_t> skip;  ///< per ray: material of the voxel medium it is in (kNoHit: none)
@@ -385,37 +400,33 @@ SPECULA_OPAQUE float sample_rotation(uint32_t global_pixel) {
   return 2.0f * kPi * to_unit_float(hash_u32(global_pixel * 0x9E3779B9u + 0x632BE5ABu));
 }
 
-/// Adds the direct lighting of every light at a surface point: straight to the pixel without
-/// shadow rays, else as shadow-ray requests carrying the radiance they would bring.
-[[gnu::always_inline]] inline void shade_lights(const Context& ctx, Scratch& s, uint32_t pixel, const Vec3& weight, const ShadeMaterial& m,
-                  const Vec3& p, const Vec3& ng_f, const Vec3& ns_f, const Vec3& view_dir,
-                  uint32_t global_pixel, uint16_t history) {
-  if (!m.lit) return;
+/// Adds the direct lighting of every light at lit hit \p j of the wavefront (Scratch::lit,
+/// whose directional and point lights were evaluated for all hits at once): straight to the
+/// pixel without shadow rays, else as shadow-ray requests carrying the radiance they would
+/// bring. Sphere lights, and hits whose Phong exponent is not whole, go through
+/// render::sample_light() here, one sample at a time.
+[[gnu::always_inline]] inline void shade_lights(const Context& ctx, Scratch& s, uint32_t pixel, uint32_t j) {
+  const render::LitPoints& lit = s.lit;
+  const bool one_by_one = lit.one_by_one(j);
+  // The whole point, gathered from the arrays only where sample_light() needs it.
+  render::LitPoint q;
+  bool have_q = false;
+  const auto point = [&]() -> const render::LitPoint& {
+    if (!have_q) {
+      q = lit[j];
+      have_q = true;
+    }
+    return q;
+  };
   // The shadow rays' origin, computed on first use (never without shadow rays).
   Vec3 org;
   bool have_org = false;
   const auto origin = [&]() -> const Vec3& {
     if (!have_org) {
-      org = offset_ray_origin(p, ng_f);
+      org = offset_ray_origin(lit.position(j), lit.normal(j));
       have_org = true;
     }
     return org;
-  };
-
-  // l: unit direction to the light; irradiance: light reaching p (before the cosine). Returns
-  // the contribution in c, false when there is none.
-  const auto sample = [&](const Vec3& l, const Vec3& irradiance, Vec3& c) {
-    if (dot(l, ng_f) <= 0.0f) return false;  // light behind the surface
-    const float cos_l = dot(ns_f, l);
-    if (cos_l <= 0.0f) return false;
-    Vec3 f = m.kd * cos_l;
-    if (m.has_spec) {
-      const Vec3 h = normalize(l - view_dir);
-      const float nh = std::max(0.0f, dot(ns_f, h));
-      if (nh > 0.0f) f += m.specular * (nh < m.spec_zero_below ? 0.0f : phong_power(nh, m.phong_exponent, m.phong_int));
-    }
-    c = weight * f * irradiance;
-    return max_component(c) > 0.0f;
   };
   // Written by index: render_tile sized the batch for shadow_per_hit rays per hit. In history
   // order each light's rays go to a region of their own, in shading order, so the batch is one
@@ -428,22 +439,27 @@ SPECULA_OPAQUE float sample_rotation(uint32_t global_pixel) {
     s.shadow_rays[slot] = shadow;
     s.shadow_req[k] = ShadowRequest{c, pixel, static_cast<uint32_t>(slot)};
     if (ctx.group_rays && !ctx.history_order)  // only read where TraceOrder groups the batch
-      s.shadow_key[k] = (uint32_t{history} << 8) | static_cast<uint32_t>(std::min<size_t>(index, 255));
+      s.shadow_key[k] = (uint32_t{s.lit_history[j]} << 8) | static_cast<uint32_t>(std::min<size_t>(index, 255));
   };
 
-  for (const LightSetup& light : ctx.lights) {
+  for (size_t li = 0; li < ctx.lights.size(); ++li) {
+    const LightSetup& light = ctx.lights[li];
     Vec3 c;
     if (light.type == LightType::Directional) {
-      if (!sample(light.l, light.power, c)) continue;
+      if (!(one_by_one ? render::sample_light(point(), light.l, light.power, c) : lit.result(li, j, c))) continue;
       if (ctx.shadows) add(c, Ray{origin(), 0.0f, light.l, kInf}, light);
       else s.accum[pixel] += c;
       continue;
     }
     if (light.point) {
-      const Vec3 to = light.position - p;
-      const float d2 = dot(to, to);
-      if (!(d2 > 0.0f)) continue;
-      if (!sample(to * (1.0f / std::sqrt(d2)), light.power / d2, c)) continue;
+      if (one_by_one) {
+        const Vec3 to = light.position - point().p;
+        const float d2 = dot(to, to);
+        if (!(d2 > 0.0f)) continue;
+        if (!render::sample_light(point(), to * (1.0f / std::sqrt(d2)), light.power / d2, c)) continue;
+      } else if (!lit.result(li, j, c)) {
+        continue;
+      }
       if (ctx.shadows) add(c, Ray{origin(), 0.0f, light.position - origin(), 1.0f}, light);
       else s.accum[pixel] += c;
       continue;
@@ -451,21 +467,38 @@ SPECULA_OPAQUE float sample_rotation(uint32_t global_pixel) {
     // Sphere light: n points of a Vogel (golden-angle Fibonacci) spiral on the disc the
     // sphere presents to p, rotated by a per-pixel hash so neighbouring pixels see different
     // but deterministic patterns. Each sample carries 1/n of the intensity.
-    const Vec3 axis = normalize(light.position - p);
+    const render::LitPoint& sq = point();
+    const Vec3 axis = normalize(light.position - sq.p);
     Vec3 t, b;
     orthonormal_basis(axis == Vec3{} ? Vec3{0, 1, 0} : axis, t, b);
-    const float rot = sample_rotation(global_pixel);
+    const float rot = sample_rotation(s.lit_global[j]);
     const size_t n = light.rr.size();
     for (size_t k = 0; k < n; ++k) {
       const float phi = light.phase[k] + rot;
-      const Vec3 q = light.position + (t * std::cos(phi) + b * std::sin(phi)) * light.rr[k];
-      const Vec3 to = q - p;
+      const Vec3 qk = light.position + (t * std::cos(phi) + b * std::sin(phi)) * light.rr[k];
+      const Vec3 to = qk - sq.p;
       const float d2 = dot(to, to);
       if (!(d2 > 0.0f)) continue;
-      if (!sample(to * (1.0f / std::sqrt(d2)), light.power * (light.inv_n / d2), c)) continue;
-      if (ctx.shadows) add(c, Ray{origin(), 0.0f, q - origin(), 1.0f}, light);
+      if (!render::sample_light(sq, to * (1.0f / std::sqrt(d2)), light.power * (light.inv_n / d2), c)) continue;
+      if (ctx.shadows) add(c, Ray{origin(), 0.0f, qk - origin(), 1.0f}, light);
       else s.accum[pixel] += c;
     }
+  }
+}
+
+/// The wavefront's lighting and its additions to the pixels, in shading order: the directional
+/// and point lights evaluated for all lit hits at once, then every addition in turn.
+[[gnu::always_inline]] inline void add_shading(const Context& ctx, Scratch& s) {
+  if (s.lit.size() > 0)
+    for (size_t li = 0; li < ctx.lights.size(); ++li) {
+      const LightSetup& light = ctx.lights[li];
+      if (light.type == LightType::Directional || light.point)
+        s.lit.evaluate_light(li, light.type == LightType::Directional, light.l, light.position, light.power);
+    }
+  for (size_t i = 0; i < s.n_additions; ++i) {
+    const Scratch::Addition& a = s.additions[i];
+    s.accum[a.pixel] += a.add;
+    if (a.lit != Scratch::kNotLit) shade_lights(ctx, s, a.pixel, a.lit);
   }
 }
 
@@ -546,9 +579,27 @@ void shade_hit(const Context& ctx, Scratch& s, const Ray& ray, const PathState& 
   const Vec3& ns_f = ns;
   const ShadeMaterial& m = *sf.m;
 
-  // Local shading: emission + ambient + direct light (through the shadow batch).
-  s.accum[seg.pixel] += weight * m.base;
-  shade_lights(ctx, s, seg.pixel, weight, m, p, ng_f, ns_f, d, seg.global, seg.history);
+  // Local shading: emission + ambient, and the hit's direct light (through the shadow batch),
+  // added after the wavefront (add_shading).
+  uint32_t lit = Scratch::kNotLit;
+  if (m.lit) {
+    render::LitPoint q;
+    q.p = p;
+    q.ng_f = ng_f;
+    q.ns_f = ns_f;
+    q.view_dir = d;
+    q.weight = weight;
+    q.kd = m.kd;
+    q.specular = m.specular;
+    q.exponent = m.phong_exponent;
+    q.zero_below = m.spec_zero_below;
+    q.phong_int = m.phong_int;
+    q.has_spec = m.has_spec;
+    lit = s.lit.add(q);
+    s.lit_global[lit] = seg.global;
+    s.lit_history[lit] = seg.history;
+  }
+  s.additions[s.n_additions++] = Scratch::Addition{weight * m.base, seg.pixel, lit};
 
   // Mirror and dielectric split.
   float refl_w = m.refl;
@@ -740,6 +791,11 @@ void render_tile(const Context& ctx, const SkyEval& sky, Scratch& s, const Pinho
       ensure_size(s.refr_paths, n);
     }
     s.n_refr = 0;
+    ensure_size(s.additions, n);
+    s.n_additions = 0;
+    s.lit.reset(n, ctx.lights.size());
+    ensure_size(s.lit_global, n);
+    ensure_size(s.lit_history, n);
     // History order: a run's refraction rays follow its mirror rays.
     const auto flush_refractions = [&] {
       std::copy_n(s.refr_rays.begin(), s.n_refr, s.next_rays.begin() + static_cast<ptrdiff_t>(s.n_next));
@@ -767,7 +823,7 @@ void render_tile(const Context& ctx, const SkyEval& sky, Scratch& s, const Pinho
         if (ctx.want_prim) ctx.film.prim_id[gp] = valid ? hit.prim : kNoHit;
       }
       if (!valid) {
-        s.accum[seg.pixel] += weight * sky.radiance(ray.dir);
+        s.additions[s.n_additions++] = Scratch::Addition{weight * sky.radiance(ray.dir), seg.pixel, Scratch::kNotLit};
         continue;
       }
       if (max_component(weight) <= 0.0f) continue;
@@ -781,6 +837,7 @@ void render_tile(const Context& ctx, const SkyEval& sky, Scratch& s, const Pinho
     }
 
     if (s.n_refr != 0) flush_refractions();
+    add_shading(ctx, s);
 
     const size_t ns = s.n_shadow;
     if (ns > 0 && ctx.history_order) {

@@ -1,0 +1,274 @@
+/// \file lighting.h
+/// Direct lighting of the Whitted integrator's hits by one light (internal to src/render;
+/// tested in tests/lighting_test.cpp): sample_light() for one surface point, LitPoints for the
+/// lit points of a whole wavefront, evaluated light by light in blocks of kLitBlock points.
+///
+/// Why blocks: for one point and one light the lighting is a single chain of dependent
+/// operations (a square root and a division to normalise the half vector, then up to twelve
+/// dependent squarings of the Phong power), so a hit at a time the core waits on latencies
+/// (the light loop was a third of a 1920x1200 pool frame). The same operations for eight
+/// points side by side overlap. Lane by lane they are the operations of sample_light() in the
+/// same order (no contraction into FMA: -ffp-contract=off; square root and division are
+/// correctly rounded in SIMD as in scalar code), so every contribution has the same bits.
+#pragma once
+
+#include <cfloat>
+#include <cmath>
+#include <cstdint>
+#include <cstring>
+#include <vector>
+
+#include "render/phong.h"
+#include "specula/math.h"
+
+#if defined(__SSE2__)
+#include <emmintrin.h>
+#endif
+
+namespace specula::render {
+
+/// What the lights need of a lit surface point.
+struct LitPoint {
+  Vec3 p;         ///< the point (on the surface up to rounding)
+  Vec3 ng_f;      ///< unit geometric normal facing the incoming ray
+  Vec3 ns_f;      ///< unit shading normal on the same side
+  Vec3 view_dir;  ///< unit direction of the incoming ray
+  Vec3 weight;    ///< path throughput
+  Vec3 kd;        ///< diffuse weight of the material (colour * local share)
+  Vec3 specular;  ///< specular colour
+  float exponent = 0.0f;    ///< Phong exponent
+  float zero_below = 0.0f;  ///< spec_zero_below(exponent): the power is +0 below this
+  uint32_t phong_int = 0;   ///< whole_exponent(exponent), 0: powf
+  bool has_spec = false;    ///< specular colour non-zero
+};
+
+/// The contribution \p c of a light from unit direction \p l (towards the light) with
+/// \p irradiance (before the cosine) at \p q: Lambert plus Blinn-Phong, times the throughput.
+/// False when there is none (light behind the surface, or nothing positive).
+inline bool sample_light(const LitPoint& q, const Vec3& l, const Vec3& irradiance, Vec3& c) {
+  if (dot(l, q.ng_f) <= 0.0f) return false;  // light behind the surface
+  const float cos_l = dot(q.ns_f, l);
+  if (cos_l <= 0.0f) return false;
+  Vec3 f = q.kd * cos_l;
+  if (q.has_spec) {
+    const Vec3 h = normalize(l - q.view_dir);
+    const float nh = std::max(0.0f, dot(q.ns_f, h));
+    if (nh > 0.0f) f += q.specular * (nh < q.zero_below ? 0.0f : phong_power(nh, q.exponent, q.phong_int));
+  }
+  c = q.weight * f * irradiance;
+  return max_component(c) > 0.0f;
+}
+
+/// Points per block of the SIMD evaluation.
+inline constexpr size_t kLitBlock = 8;
+
+/// The lit points of one wavefront, structure of arrays, and per light the contributions
+/// evaluate_light() found for them. Storage only grows: reset() for every wavefront.
+class LitPoints {
+ public:
+  /// Empties the set and makes room for \p n points and \p lights lights.
+  void reset(size_t n, size_t lights) {
+    n_ = 0;
+    stride_ = (n + kLitBlock - 1) / kLitBlock * kLitBlock;
+    grow(rows_, kRows * stride_);
+    grow(power_, stride_);
+    grow(spec_, stride_);
+    grow(exponent_, stride_);
+    grow(c_, 3 * lights * stride_);
+    grow(ok_, lights * stride_);
+  }
+
+  /// Adds a point; returns its index.
+  uint32_t add(const LitPoint& q) {
+    const size_t j = n_++;
+    const Vec3* v[7] = {&q.p, &q.ng_f, &q.ns_f, &q.view_dir, &q.weight, &q.kd, &q.specular};
+    for (int k = 0; k < 7; ++k) {
+      row(3 * k)[j] = v[k]->x;
+      row(3 * k + 1)[j] = v[k]->y;
+      row(3 * k + 2)[j] = v[k]->z;
+    }
+    row(kZero)[j] = q.zero_below;
+    exponent_[j] = q.exponent;
+    power_[j] = static_cast<int32_t>(q.phong_int);
+    spec_[j] = q.has_spec ? -1 : 0;
+    return static_cast<uint32_t>(j);
+  }
+
+  size_t size() const { return n_; }
+
+  LitPoint operator[](size_t j) const {
+    LitPoint q;
+    Vec3* v[7] = {&q.p, &q.ng_f, &q.ns_f, &q.view_dir, &q.weight, &q.kd, &q.specular};
+    for (int k = 0; k < 7; ++k) *v[k] = {row(3 * k)[j], row(3 * k + 1)[j], row(3 * k + 2)[j]};
+    q.zero_below = row(kZero)[j];
+    q.exponent = exponent_[j];
+    q.phong_int = static_cast<uint32_t>(power_[j]);
+    q.has_spec = spec_[j] != 0;
+    return q;
+  }
+
+  /// The position and the geometric normal of point \p j (what a shadow ray starts from).
+  Vec3 position(size_t j) const { return {row(0)[j], row(1)[j], row(2)[j]}; }
+  Vec3 normal(size_t j) const { return {row(3)[j], row(4)[j], row(5)[j]}; }
+
+  /// Whether point \p j goes through sample_light() one by one: a specular lobe whose exponent
+  /// is not whole (powf, which has no SIMD form here).
+  bool one_by_one(size_t j) const { return spec_[j] != 0 && power_[j] == 0; }
+
+  /// Evaluates light \p light (an index below reset()'s count) at every point: a directional
+  /// light from unit direction \p dir, else a point light at \p position; \p power is its
+  /// colour times intensity. Afterwards result() holds what sample_light() gives, bit for bit,
+  /// for every point but the one_by_one() ones.
+  void evaluate_light(size_t light, bool directional, const Vec3& dir, const Vec3& position, const Vec3& power);
+
+  /// The contribution of light \p light at point \p j (evaluate_light() ran): false when none.
+  bool result(size_t light, size_t j, Vec3& c) const {
+    const size_t at = 3 * light * stride_ + j;
+    c = {c_[at], c_[at + stride_], c_[at + 2 * stride_]};
+    return ok_[light * stride_ + j] != 0;
+  }
+
+ private:
+  enum : int { kZero = 21, kRows = 22 };  ///< rows 0-20: the seven vectors, x y z each
+  template <class T>
+  static void grow(std::vector<T>& v, size_t n) {
+    if (v.size() < n) v.resize(n);
+  }
+  float* row(int r) { return rows_.data() + static_cast<size_t>(r) * stride_; }
+  const float* row(int r) const { return rows_.data() + static_cast<size_t>(r) * stride_; }
+
+  size_t n_ = 0, stride_ = 0;
+  std::vector<float> rows_;
+  std::vector<int32_t> power_, spec_;
+  std::vector<float> exponent_;
+  std::vector<float> c_;
+  std::vector<int32_t> ok_;
+};
+
+// The helpers below pass 32- and 64-byte vectors by value. They are always inlined (into
+// render_tile, compiled for x86-64, x86-64-v3 and x86-64-v4), so GCC's -Wpsabi note about that
+// ABI is off for our targets (CMakeLists.txt).
+namespace lit_detail {
+
+using F8 = float __attribute__((vector_size(32)));
+using I8 = int32_t __attribute__((vector_size(32)));
+using D8 = double __attribute__((vector_size(64)));
+using L8 = int64_t __attribute__((vector_size(64)));
+
+#define SPECULA_LIT_INLINE inline __attribute__((always_inline))
+
+SPECULA_LIT_INLINE F8 load(const float* p) {
+  F8 v;
+  std::memcpy(&v, p, sizeof v);
+  return v;
+}
+SPECULA_LIT_INLINE I8 load(const int32_t* p) {
+  I8 v;
+  std::memcpy(&v, p, sizeof v);
+  return v;
+}
+SPECULA_LIT_INLINE F8 splat(float x) { return F8{x, x, x, x, x, x, x, x}; }
+template <class To, class From>
+SPECULA_LIT_INLINE To bits(const From& f) {
+  static_assert(sizeof(To) == sizeof(From));
+  To t;
+  std::memcpy(&t, &f, sizeof t);
+  return t;
+}
+/// Lane by lane m ? a : b, for masks of all ones or all zeros (comparison results).
+SPECULA_LIT_INLINE F8 select(I8 m, F8 a, F8 b) { return bits<F8>((m & bits<I8>(a)) | (~m & bits<I8>(b))); }
+SPECULA_LIT_INLINE D8 select(L8 m, D8 a, D8 b) { return bits<D8>((m & bits<L8>(a)) | (~m & bits<L8>(b))); }
+
+/// Correctly rounded square roots (the scalar std::sqrt's bits).
+SPECULA_LIT_INLINE F8 sqrt8(F8 x) {
+#if defined(__SSE2__)
+  __m128 lo, hi;
+  std::memcpy(&lo, &x, 16);
+  std::memcpy(&hi, reinterpret_cast<const char*>(&x) + 16, 16);
+  lo = _mm_sqrt_ps(lo);
+  hi = _mm_sqrt_ps(hi);
+  F8 r;
+  std::memcpy(&r, &lo, 16);
+  std::memcpy(reinterpret_cast<char*>(&r) + 16, &hi, 16);
+  return r;
+#else
+  F8 r;
+  for (int i = 0; i < 8; ++i) r[i] = std::sqrt(x[i]);
+  return r;
+#endif
+}
+
+/// phong_power() of eight lanes with whole exponents \p n (>= 1 where used): the same products
+/// in double, lane by lane; a lane whose exponent has fewer bits only squares its base further,
+/// which its result never uses.
+SPECULA_LIT_INLINE F8 power8(F8 x, I8 n32) {
+  int32_t most = 0;
+  for (int i = 0; i < 8; ++i) most = std::max(most, n32[i]);
+  const L8 n = __builtin_convertvector(n32, L8);
+  D8 b = __builtin_convertvector(x, D8);
+  const L8 one_bit = {1, 1, 1, 1, 1, 1, 1, 1}, none = {0, 0, 0, 0, 0, 0, 0, 0};
+  D8 r = select((n & one_bit) != none, b, D8{1.0, 1.0, 1.0, 1.0, 1.0, 1.0, 1.0, 1.0});
+  for (int k = 1; (most >> k) != 0; ++k) {
+    b = b * b;
+    r = select(((n >> k) & one_bit) != none, r * b, r);
+  }
+  return __builtin_convertvector(r, F8);
+}
+
+}  // namespace lit_detail
+
+inline void LitPoints::evaluate_light(size_t light, bool directional, const Vec3& dir, const Vec3& position,
+                                      const Vec3& power) {
+  using namespace lit_detail;
+  const F8 zero = splat(0.0f), one = splat(1.0f);
+  float* const cx = c_.data() + 3 * light * stride_;
+  float* const cy = cx + stride_;
+  float* const cz = cy + stride_;
+  int32_t* const ok = ok_.data() + light * stride_;
+  for (size_t j = 0; j < n_; j += kLitBlock) {
+    const auto at = [&](int r) { return load(row(r) + j); };
+    const F8 px = at(0), py = at(1), pz = at(2);
+    // The light's direction and irradiance at the points (sample_light's l and irradiance).
+    F8 lx, ly, lz, ix, iy, iz;
+    I8 valid = {-1, -1, -1, -1, -1, -1, -1, -1};  // every lane
+    if (directional) {
+      lx = splat(dir.x), ly = splat(dir.y), lz = splat(dir.z);
+      ix = splat(power.x), iy = splat(power.y), iz = splat(power.z);
+    } else {
+      const F8 tx = splat(position.x) - px, ty = splat(position.y) - py, tz = splat(position.z) - pz;
+      const F8 d2 = tx * tx + ty * ty + tz * tz;
+      valid = d2 > zero;
+      const F8 inv = one / sqrt8(d2);
+      lx = tx * inv, ly = ty * inv, lz = tz * inv;
+      const F8 inv_d2 = one / d2;
+      ix = splat(power.x) * inv_d2, iy = splat(power.y) * inv_d2, iz = splat(power.z) * inv_d2;
+    }
+    // sample_light().
+    const F8 gx = at(3), gy = at(4), gz = at(5), sx = at(6), sy = at(7), sz = at(8);
+    const F8 front = lx * gx + ly * gy + lz * gz;
+    const F8 cos_l = sx * lx + sy * ly + sz * lz;
+    F8 fx = at(15) * cos_l, fy = at(16) * cos_l, fz = at(17) * cos_l;
+    F8 hx = lx - at(9), hy = ly - at(10), hz = lz - at(11);
+    const F8 len = sqrt8(hx * hx + hy * hy + hz * hz);
+    const I8 unit = (len > zero) & (len <= splat(FLT_MAX));  // normalize(): zero unless finite and > 0
+    const F8 inv_len = one / len;
+    hx = select(unit, hx * inv_len, zero), hy = select(unit, hy * inv_len, zero), hz = select(unit, hz * inv_len, zero);
+    const F8 dn = sx * hx + sy * hy + sz * hz;
+    const F8 nh = select(zero < dn, dn, zero);  // std::max(0.0f, dn)
+    const F8 pw = select(nh < at(kZero), zero, power8(nh, load(power_.data() + j)));
+    const I8 spec = load(spec_.data() + j) & (nh > zero);
+    fx = select(spec, fx + at(18) * pw, fx);
+    fy = select(spec, fy + at(19) * pw, fy);
+    fz = select(spec, fz + at(20) * pw, fz);
+    const F8 rx = at(12) * fx * ix, ry = at(13) * fy * iy, rz = at(14) * fz * iz;
+    const F8 inner = select(ry < rz, rz, ry);  // max_component(): std::max(x, std::max(y, z))
+    const F8 most = select(rx < inner, inner, rx);
+    const I8 lit = valid & ~(front <= zero) & ~(cos_l <= zero) & (most > zero);
+    std::memcpy(cx + j, &rx, sizeof rx);
+    std::memcpy(cy + j, &ry, sizeof ry);
+    std::memcpy(cz + j, &rz, sizeof rz);
+    std::memcpy(ok + j, &lit, sizeof lit);
+  }
+}
+
+}  // namespace specula::render

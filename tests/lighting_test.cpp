@@ -1,0 +1,130 @@
+// The block evaluation of lights (render::LitPoints) against render::sample_light(), the
+// one-point formula: the same contributions bit for bit, for every kind of point.
+#include <gtest/gtest.h>
+
+#include <cmath>
+#include <cstring>
+#include <random>
+#include <vector>
+
+#include "render/lighting.h"
+
+using namespace specula;
+using render::LitPoint;
+using render::LitPoints;
+
+namespace {
+
+Vec3 random_unit(std::mt19937& rng) {
+  std::normal_distribution<float> g;
+  for (;;) {
+    const Vec3 v{g(rng), g(rng), g(rng)};
+    if (dot(v, v) > 1e-6f) return normalize(v);
+  }
+}
+
+/// A point of every kind the integrator shades: normals and view directions at random (the
+/// light in front, behind or grazing), with and without a shading normal, zero or non-zero
+/// colours, whole exponents 1..4096 and non-whole ones, with and without the powf zero bound.
+LitPoint random_point(std::mt19937& rng, size_t i) {
+  std::uniform_real_distribution<float> u(0.0f, 1.0f);
+  LitPoint q;
+  q.p = {u(rng) * 4.0f - 2.0f, u(rng) * 4.0f - 2.0f, u(rng) * 4.0f - 2.0f};
+  q.ng_f = random_unit(rng);
+  q.ns_f = i % 3 == 0 ? q.ng_f : normalize(q.ng_f + random_unit(rng) * 0.3f);
+  q.view_dir = random_unit(rng);
+  q.weight = {u(rng), u(rng), u(rng)};
+  q.kd = i % 7 == 0 ? Vec3{} : Vec3{u(rng), u(rng), u(rng)};
+  q.has_spec = i % 5 != 0;
+  q.specular = q.has_spec ? Vec3{u(rng), u(rng), u(rng)} : Vec3{};
+  static const float kExponents[] = {1, 2, 3, 7, 16, 33, 64, 100, 128, 255, 400, 1000, 4095, 4096, 2.5f, 17.25f};
+  q.exponent = kExponents[i % (sizeof kExponents / sizeof kExponents[0])];
+  q.phong_int = whole_exponent(q.exponent);
+  q.zero_below = i % 2 == 0 ? std::exp2(-160.0f / q.exponent) : 0.0f;
+  return q;
+}
+
+struct TestLight {
+  bool directional;
+  Vec3 dir, position, power;
+};
+
+/// What sample_light() gives for light \p L at \p q, as the integrator calls it.
+bool one_point(const LitPoint& q, const TestLight& L, Vec3& c) {
+  if (L.directional) return render::sample_light(q, L.dir, L.power, c);
+  const Vec3 to = L.position - q.p;
+  const float d2 = dot(to, to);
+  if (!(d2 > 0.0f)) return false;
+  return render::sample_light(q, to * (1.0f / std::sqrt(d2)), L.power / d2, c);
+}
+
+}  // namespace
+
+TEST(Lighting, BlocksGiveSampleLightsBitsForEveryPoint) {
+  std::mt19937 rng(7);
+  std::vector<TestLight> lights;
+  for (int k = 0; k < 4; ++k) lights.push_back({true, random_unit(rng), {}, {1.0f, 0.9f, 0.8f}});
+  for (int k = 0; k < 4; ++k) lights.push_back({false, {}, {static_cast<float>(k) - 1.5f, 2.0f, 0.5f}, {3.0f, 2.0f, 1.0f}});
+  LitPoints lit;
+  size_t checked = 0, contributing = 0, one_by_one = 0;
+  for (const size_t n : {size_t{1003}, size_t{8}, size_t{5}, size_t{1003}}) {  // storage reused, shrinking and growing
+    std::vector<LitPoint> points;
+    for (size_t i = 0; i < n; ++i) points.push_back(random_point(rng, i));
+    // Special cases: the view direction equal to a light's direction (a zero half vector), a
+    // point light exactly at a point (no direction), a light straight along the normal.
+    points[1].view_dir = lights[0].dir;
+    points[2].p = lights[5].position;
+    points[3].ng_f = points[3].ns_f = lights[1].dir;
+    lit.reset(n, lights.size());
+    for (size_t i = 0; i < n; ++i) ASSERT_EQ(lit.add(points[i]), i);
+    ASSERT_EQ(lit.size(), n);
+    for (size_t li = 0; li < lights.size(); ++li)
+      lit.evaluate_light(li, lights[li].directional, lights[li].dir, lights[li].position, lights[li].power);
+    for (size_t i = 0; i < n; ++i) {
+      const LitPoint back = lit[i];
+      ASSERT_EQ(std::memcmp(&back.p, &points[i].p, sizeof(Vec3)), 0);
+      ASSERT_EQ(back.phong_int, points[i].phong_int);
+      ASSERT_EQ(back.has_spec, points[i].has_spec);
+      ASSERT_EQ(lit.one_by_one(i), points[i].has_spec && points[i].phong_int == 0);
+      if (lit.one_by_one(i)) {
+        ++one_by_one;
+        continue;
+      }
+      for (size_t li = 0; li < lights.size(); ++li) {
+        Vec3 want{}, got{};
+        const bool w = one_point(points[i], lights[li], want), g = lit.result(li, i, got);
+        ASSERT_EQ(g, w) << "point " << i << " light " << li;
+        ++checked;
+        if (!w) continue;
+        ++contributing;
+        ASSERT_EQ(std::memcmp(&got, &want, sizeof(Vec3)), 0)
+            << "point " << i << " light " << li << ": " << got.x << " " << got.y << " " << got.z << " vs " << want.x
+            << " " << want.y << " " << want.z;
+      }
+    }
+  }
+  // Both outcomes were exercised, and the powf points were left to sample_light().
+  EXPECT_GT(contributing, checked / 5);
+  EXPECT_LT(contributing, checked);
+  EXPECT_GT(one_by_one, 0u);
+}
+
+TEST(Lighting, BlockPowerIsPhongPowerForEveryWholeExponent) {
+  std::mt19937 rng(3);
+  std::uniform_real_distribution<float> u(0.0f, 1.0f);
+  using render::lit_detail::F8;
+  using render::lit_detail::I8;
+  for (int32_t e = 1; e <= static_cast<int32_t>(kMaxSquaringExponent); e += 8) {
+    F8 x;
+    I8 n;
+    for (int k = 0; k < 8; ++k) {  // eight different exponents per block, the largest last
+      x[k] = k == 0 ? 1.0f : (k == 1 ? 0.0f : u(rng));
+      n[k] = std::min<int32_t>(e + k, static_cast<int32_t>(kMaxSquaringExponent));
+    }
+    const F8 p = render::lit_detail::power8(x, n);
+    for (int k = 0; k < 8; ++k) {
+      const float want = phong_power(x[k], static_cast<float>(n[k]), static_cast<uint32_t>(n[k]));
+      ASSERT_EQ(std::memcmp(&p[k], &want, sizeof want), 0) << x[k] << "^" << n[k];
+    }
+  }
+}
