@@ -112,17 +112,17 @@ TEST(Lighting, BlocksGiveSampleLightsBitsForEveryPoint) {
 TEST(Lighting, BlockPowerIsPhongPowerForEveryWholeExponent) {
   std::mt19937 rng(3);
   std::uniform_real_distribution<float> u(0.0f, 1.0f);
-  using render::lit_detail::F8;
-  using render::lit_detail::I8;
-  for (int32_t e = 1; e <= static_cast<int32_t>(kMaxSquaringExponent); e += 8) {
-    F8 x;
-    I8 n;
-    for (int k = 0; k < 8; ++k) {  // eight different exponents per block, the largest last
+  using render::lit_detail::Fv;
+  using render::lit_detail::Iv;
+  for (int32_t e = 1; e <= static_cast<int32_t>(kMaxSquaringExponent); e += static_cast<int32_t>(render::kLitBlock)) {
+    Fv x;
+    Iv n;
+    for (int k = 0; k < static_cast<int>(render::kLitBlock); ++k) {  // different exponents per block, the largest last
       x[k] = k == 0 ? 1.0f : (k == 1 ? 0.0f : u(rng));
       n[k] = std::min<int32_t>(e + k, static_cast<int32_t>(kMaxSquaringExponent));
     }
-    const F8 p = render::lit_detail::power8(x, n);
-    for (int k = 0; k < 8; ++k) {
+    const Fv p = render::lit_detail::power_lanes(x, n);
+    for (int k = 0; k < static_cast<int>(render::kLitBlock); ++k) {
       const float want = phong_power(x[k], static_cast<float>(n[k]), static_cast<uint32_t>(n[k]));
       ASSERT_EQ(std::memcmp(&p[k], &want, sizeof want), 0) << x[k] << "^" << n[k];
     }

@@ -6,8 +6,8 @@
 /// Why blocks: for one point and one light the lighting is a single chain of dependent
 /// operations (a square root and a division to normalise the half vector, then up to twelve
 /// dependent squarings of the Phong power), so a hit at a time the core waits on latencies
-/// (the light loop was a third of a 1920x1200 pool frame). The same operations for eight
-/// points side by side overlap. Lane by lane they are the operations of sample_light() in the
+/// (the light loop was a third of a 1920x1200 pool frame). The same operations for a block
+/// of points side by side overlap. Lane by lane they are the operations of sample_light() in the
 /// same order (no contraction into FMA: -ffp-contract=off; square root and division are
 /// correctly rounded in SIMD as in scalar code), so every contribution has the same bits.
 #pragma once
@@ -21,9 +21,6 @@
 #include "render/phong.h"
 #include "specula/math.h"
 
-#if defined(__SSE2__)
-#include <emmintrin.h>
-#endif
 
 namespace specula::render {
 
@@ -59,7 +56,9 @@ inline bool sample_light(const LitPoint& q, const Vec3& l, const Vec3& irradianc
   return max_component(c) > 0.0f;
 }
 
-/// Points per block of the SIMD evaluation.
+/// Points per block of the SIMD evaluation: eight floats fill an AVX2 register, the Phong
+/// power's doubles an AVX-512 one. (Sixteen, AVX-512 floats, made the water view's frame 28%
+/// slower on one pinned thread of the Zen 5 machine: 74.7 against 58.5 ms.)
 inline constexpr size_t kLitBlock = 8;
 
 /// The lit points of one wavefront, structure of arrays, and per light the contributions
@@ -150,24 +149,28 @@ class LitPoints {
 // ABI is off for our targets (CMakeLists.txt).
 namespace lit_detail {
 
-using F8 = float __attribute__((vector_size(32)));
-using I8 = int32_t __attribute__((vector_size(32)));
-using D8 = double __attribute__((vector_size(64)));
-using L8 = int64_t __attribute__((vector_size(64)));
+using Fv = float __attribute__((vector_size(4 * kLitBlock)));
+using Iv = int32_t __attribute__((vector_size(4 * kLitBlock)));
+using Dv = double __attribute__((vector_size(8 * kLitBlock)));
+using Lv = int64_t __attribute__((vector_size(8 * kLitBlock)));
 
 #define SPECULA_LIT_INLINE inline __attribute__((always_inline))
 
-SPECULA_LIT_INLINE F8 load(const float* p) {
-  F8 v;
+SPECULA_LIT_INLINE Fv load(const float* p) {
+  Fv v;
   std::memcpy(&v, p, sizeof v);
   return v;
 }
-SPECULA_LIT_INLINE I8 load(const int32_t* p) {
-  I8 v;
+SPECULA_LIT_INLINE Iv load(const int32_t* p) {
+  Iv v;
   std::memcpy(&v, p, sizeof v);
   return v;
 }
-SPECULA_LIT_INLINE F8 splat(float x) { return F8{x, x, x, x, x, x, x, x}; }
+SPECULA_LIT_INLINE Fv splat(float x) {
+  Fv v;
+  for (size_t i = 0; i < kLitBlock; ++i) v[i] = x;
+  return v;
+}
 template <class To, class From>
 SPECULA_LIT_INLINE To bits(const From& f) {
   static_assert(sizeof(To) == sizeof(From));
@@ -176,43 +179,34 @@ SPECULA_LIT_INLINE To bits(const From& f) {
   return t;
 }
 /// Lane by lane m ? a : b, for masks of all ones or all zeros (comparison results).
-SPECULA_LIT_INLINE F8 select(I8 m, F8 a, F8 b) { return bits<F8>((m & bits<I8>(a)) | (~m & bits<I8>(b))); }
-SPECULA_LIT_INLINE D8 select(L8 m, D8 a, D8 b) { return bits<D8>((m & bits<L8>(a)) | (~m & bits<L8>(b))); }
+SPECULA_LIT_INLINE Fv select(Iv m, Fv a, Fv b) { return bits<Fv>((m & bits<Iv>(a)) | (~m & bits<Iv>(b))); }
+SPECULA_LIT_INLINE Dv select(Lv m, Dv a, Dv b) { return bits<Dv>((m & bits<Lv>(a)) | (~m & bits<Lv>(b))); }
 
-/// Correctly rounded square roots (the scalar std::sqrt's bits).
-SPECULA_LIT_INLINE F8 sqrt8(F8 x) {
-#if defined(__SSE2__)
-  __m128 lo, hi;
-  std::memcpy(&lo, &x, 16);
-  std::memcpy(&hi, reinterpret_cast<const char*>(&x) + 16, 16);
-  lo = _mm_sqrt_ps(lo);
-  hi = _mm_sqrt_ps(hi);
-  F8 r;
-  std::memcpy(&r, &lo, 16);
-  std::memcpy(reinterpret_cast<char*>(&r) + 16, &hi, 16);
+/// Correctly rounded square roots (the scalar std::sqrt's bits). whitted.cpp is compiled with
+/// -fno-math-errno, which lets GCC make this one vector instruction per register.
+SPECULA_LIT_INLINE Fv sqrt_lanes(Fv x) {
+  Fv r;
+  for (size_t i = 0; i < kLitBlock; ++i) r[i] = std::sqrt(x[i]);
   return r;
-#else
-  F8 r;
-  for (int i = 0; i < 8; ++i) r[i] = std::sqrt(x[i]);
-  return r;
-#endif
 }
 
-/// phong_power() of eight lanes with whole exponents \p n (>= 1 where used): the same products
+/// phong_power() of a block's lanes with whole exponents \p n (>= 1 where used): the same products
 /// in double, lane by lane; a lane whose exponent has fewer bits only squares its base further,
 /// which its result never uses.
-SPECULA_LIT_INLINE F8 power8(F8 x, I8 n32) {
+SPECULA_LIT_INLINE Fv power_lanes(Fv x, Iv n32) {
   int32_t most = 0;
-  for (int i = 0; i < 8; ++i) most = std::max(most, n32[i]);
-  const L8 n = __builtin_convertvector(n32, L8);
-  D8 b = __builtin_convertvector(x, D8);
-  const L8 one_bit = {1, 1, 1, 1, 1, 1, 1, 1}, none = {0, 0, 0, 0, 0, 0, 0, 0};
-  D8 r = select((n & one_bit) != none, b, D8{1.0, 1.0, 1.0, 1.0, 1.0, 1.0, 1.0, 1.0});
+  for (size_t i = 0; i < kLitBlock; ++i) most = std::max(most, n32[i]);
+  const Lv n = __builtin_convertvector(n32, Lv);
+  Dv b = __builtin_convertvector(x, Dv);
+  const Lv none{}, one_bit = none + 1;
+  Dv unit;
+  for (size_t i = 0; i < kLitBlock; ++i) unit[i] = 1.0;
+  Dv r = select((n & one_bit) != none, b, unit);
   for (int k = 1; (most >> k) != 0; ++k) {
     b = b * b;
     r = select(((n >> k) & one_bit) != none, r * b, r);
   }
-  return __builtin_convertvector(r, F8);
+  return __builtin_convertvector(r, Fv);
 }
 
 }  // namespace lit_detail
@@ -220,50 +214,50 @@ SPECULA_LIT_INLINE F8 power8(F8 x, I8 n32) {
 inline void LitPoints::evaluate_light(size_t light, bool directional, const Vec3& dir, const Vec3& position,
                                       const Vec3& power) {
   using namespace lit_detail;
-  const F8 zero = splat(0.0f), one = splat(1.0f);
+  const Fv zero = splat(0.0f), one = splat(1.0f);
   float* const cx = c_.data() + 3 * light * stride_;
   float* const cy = cx + stride_;
   float* const cz = cy + stride_;
   int32_t* const ok = ok_.data() + light * stride_;
   for (size_t j = 0; j < n_; j += kLitBlock) {
     const auto at = [&](int r) { return load(row(r) + j); };
-    const F8 px = at(0), py = at(1), pz = at(2);
+    const Fv px = at(0), py = at(1), pz = at(2);
     // The light's direction and irradiance at the points (sample_light's l and irradiance).
-    F8 lx, ly, lz, ix, iy, iz;
-    I8 valid = {-1, -1, -1, -1, -1, -1, -1, -1};  // every lane
+    Fv lx, ly, lz, ix, iy, iz;
+    Iv valid = Iv{} == Iv{};  // every lane
     if (directional) {
       lx = splat(dir.x), ly = splat(dir.y), lz = splat(dir.z);
       ix = splat(power.x), iy = splat(power.y), iz = splat(power.z);
     } else {
-      const F8 tx = splat(position.x) - px, ty = splat(position.y) - py, tz = splat(position.z) - pz;
-      const F8 d2 = tx * tx + ty * ty + tz * tz;
+      const Fv tx = splat(position.x) - px, ty = splat(position.y) - py, tz = splat(position.z) - pz;
+      const Fv d2 = tx * tx + ty * ty + tz * tz;
       valid = d2 > zero;
-      const F8 inv = one / sqrt8(d2);
+      const Fv inv = one / sqrt_lanes(d2);
       lx = tx * inv, ly = ty * inv, lz = tz * inv;
-      const F8 inv_d2 = one / d2;
+      const Fv inv_d2 = one / d2;
       ix = splat(power.x) * inv_d2, iy = splat(power.y) * inv_d2, iz = splat(power.z) * inv_d2;
     }
     // sample_light().
-    const F8 gx = at(3), gy = at(4), gz = at(5), sx = at(6), sy = at(7), sz = at(8);
-    const F8 front = lx * gx + ly * gy + lz * gz;
-    const F8 cos_l = sx * lx + sy * ly + sz * lz;
-    F8 fx = at(15) * cos_l, fy = at(16) * cos_l, fz = at(17) * cos_l;
-    F8 hx = lx - at(9), hy = ly - at(10), hz = lz - at(11);
-    const F8 len = sqrt8(hx * hx + hy * hy + hz * hz);
-    const I8 unit = (len > zero) & (len <= splat(FLT_MAX));  // normalize(): zero unless finite and > 0
-    const F8 inv_len = one / len;
+    const Fv gx = at(3), gy = at(4), gz = at(5), sx = at(6), sy = at(7), sz = at(8);
+    const Fv front = lx * gx + ly * gy + lz * gz;
+    const Fv cos_l = sx * lx + sy * ly + sz * lz;
+    Fv fx = at(15) * cos_l, fy = at(16) * cos_l, fz = at(17) * cos_l;
+    Fv hx = lx - at(9), hy = ly - at(10), hz = lz - at(11);
+    const Fv len = sqrt_lanes(hx * hx + hy * hy + hz * hz);
+    const Iv unit = (len > zero) & (len <= splat(FLT_MAX));  // normalize(): zero unless finite and > 0
+    const Fv inv_len = one / len;
     hx = select(unit, hx * inv_len, zero), hy = select(unit, hy * inv_len, zero), hz = select(unit, hz * inv_len, zero);
-    const F8 dn = sx * hx + sy * hy + sz * hz;
-    const F8 nh = select(zero < dn, dn, zero);  // std::max(0.0f, dn)
-    const F8 pw = select(nh < at(kZero), zero, power8(nh, load(power_.data() + j)));
-    const I8 spec = load(spec_.data() + j) & (nh > zero);
+    const Fv dn = sx * hx + sy * hy + sz * hz;
+    const Fv nh = select(zero < dn, dn, zero);  // std::max(0.0f, dn)
+    const Fv pw = select(nh < at(kZero), zero, power_lanes(nh, load(power_.data() + j)));
+    const Iv spec = load(spec_.data() + j) & (nh > zero);
     fx = select(spec, fx + at(18) * pw, fx);
     fy = select(spec, fy + at(19) * pw, fy);
     fz = select(spec, fz + at(20) * pw, fz);
-    const F8 rx = at(12) * fx * ix, ry = at(13) * fy * iy, rz = at(14) * fz * iz;
-    const F8 inner = select(ry < rz, rz, ry);  // max_component(): std::max(x, std::max(y, z))
-    const F8 most = select(rx < inner, inner, rx);
-    const I8 lit = valid & ~(front <= zero) & ~(cos_l <= zero) & (most > zero);
+    const Fv rx = at(12) * fx * ix, ry = at(13) * fy * iy, rz = at(14) * fz * iz;
+    const Fv inner = select(ry < rz, rz, ry);  // max_component(): std::max(x, std::max(y, z))
+    const Fv most = select(rx < inner, inner, rx);
+    const Iv lit = valid & ~(front <= zero) & ~(cos_l <= zero) & (most > zero);
     std::memcpy(cx + j, &rx, sizeof rx);
     std::memcpy(cy + j, &ry, sizeof ry);
     std::memcpy(cz + j, &rz, sizeof rz);
