@@ -452,12 +452,21 @@ TEST(Render, RejectsAbsurdImageSizes) {
   }
 }
 
-TEST(Render, StatsProgressAndAovs) {
+namespace {
+
+/// A lit plane seen from above, small enough that the top rows look past its far edge (misses).
+Scene lit_plane() {
   Scene s = base_scene();
-  // Small enough that the top rows look past its far edge.
   add_quad(s, "plane", {0, 0, 0}, {0, 0, 5}, {5, 0, 0}, s.add_material(diffuse(Vec3{0.5f})));
   s.lights.push_back(point_light({0, 2, 0}, 4.0f));
   s.cameras.push_back(look({0, 1.5f, 3}, {0, 0, 0}));
+  return s;
+}
+
+}  // namespace
+
+TEST(Render, StatsProgressAndAovs) {
+  const Scene s = lit_plane();
   const auto tracer = make_tracer(s);
   RenderOptions o = small(41, 31);
   o.tile_size = 8;
@@ -502,10 +511,7 @@ TEST(Render, StatsProgressAndAovs) {
 }
 
 TEST(Render, RenderingIntoAReusedFilmGivesTheFreshImage) {
-  Scene s = base_scene();
-  add_quad(s, "plane", {0, 0, 0}, {0, 0, 5}, {5, 0, 0}, s.add_material(diffuse(Vec3{0.5f})));
-  s.lights.push_back(point_light({0, 2, 0}, 4.0f));
-  s.cameras.push_back(look({0, 1.5f, 3}, {0, 0, 0}));
+  const Scene s = lit_plane();
   const auto tracer = make_tracer(s);
   RenderOptions o = small(41, 31);
   o.aovs = parse_aovs("depth,normal,prim,cost");
