@@ -138,7 +138,10 @@ struct TraceOrder {
   uint32_t counts[kMaxGroups + 1] = {};
 
   /// Fills `order` from per-ray keys; false when it would be the identity (nothing to do).
-  bool build(std::span<const uint32_t> key) {
+  // Out of line, as trace_in_order: render_tile is flattened, and these, which a frame within
+  // 15 bounces never runs (history order instead), took code space in its hot loop; with them
+  // and the sphere lights outside, a pool water frame is about 3% faster (BENCHMARKS.md).
+  [[gnu::noinline]] bool build(std::span<const uint32_t> key) {
     const size_t n = key.size();
     std::vector<uint8_t>& g = group_;
     g.resize(n);
@@ -170,7 +173,7 @@ struct TraceOrder {
   /// results) fills one result per ray, \p out receives them in the rays' own positions.
   /// \p sorted_rays and \p sorted_out are scratch.
   template <class Result, class Trace>
-  void trace_in_order(std::span<const Ray> rays, std::vector<Ray>& sorted_rays, std::vector<Result>& sorted_out,
+  [[gnu::noinline]] void trace_in_order(std::span<const Ray> rays, std::vector<Ray>& sorted_rays, std::vector<Result>& sorted_out,
                       std::span<Result> out, Trace&& trace) const {
     const size_t n = order.size();
     sorted_rays.resize(n);
@@ -400,6 +403,31 @@ SPECULA_OPAQUE float sample_rotation(uint32_t global_pixel) {
   return 2.0f * kPi * to_unit_float(hash_u32(global_pixel * 0x9E3779B9u + 0x632BE5ABu));
 }
 
+/// The samples of sphere light \p light at lit point \p sq (lit hit \p j): n points of a Vogel
+/// (golden-angle Fibonacci) spiral on the disc the sphere presents to the point, rotated by a
+/// per-pixel hash so neighbouring pixels see different but deterministic patterns. Each sample
+/// carries 1/n of the intensity; \p emit(contribution, sample point) takes each lit one. Out of
+/// line (like the other paths a typical frame never takes): render_tile's hot loop stays small.
+template <class Emit>
+[[gnu::noinline]] void sphere_light(const Scratch& s, uint32_t j, const LightSetup& light, const render::LitPoint& sq,
+                                    Emit&& emit) {
+  const Vec3 axis = normalize(light.position - sq.p);
+  Vec3 t, b;
+  orthonormal_basis(axis == Vec3{} ? Vec3{0, 1, 0} : axis, t, b);
+  const float rot = sample_rotation(s.lit_global[j]);
+  const size_t n = light.rr.size();
+  for (size_t k = 0; k < n; ++k) {
+    const float phi = light.phase[k] + rot;
+    const Vec3 qk = light.position + (t * std::cos(phi) + b * std::sin(phi)) * light.rr[k];
+    const Vec3 to = qk - sq.p;
+    const float d2 = dot(to, to);
+    if (!(d2 > 0.0f)) continue;
+    Vec3 c;
+    if (!render::sample_light(sq, to * (1.0f / std::sqrt(d2)), light.power * (light.inv_n / d2), c)) continue;
+    emit(c, qk);
+  }
+}
+
 /// Adds the direct lighting of every light at lit hit \p j of the wavefront (Scratch::lit,
 /// whose directional and point lights were evaluated for all hits at once): straight to the
 /// pixel without shadow rays, else as shadow-ray requests carrying the radiance they would
@@ -464,25 +492,10 @@ SPECULA_OPAQUE float sample_rotation(uint32_t global_pixel) {
       else s.accum[pixel] += c;
       continue;
     }
-    // Sphere light: n points of a Vogel (golden-angle Fibonacci) spiral on the disc the
-    // sphere presents to p, rotated by a per-pixel hash so neighbouring pixels see different
-    // but deterministic patterns. Each sample carries 1/n of the intensity.
-    const render::LitPoint& sq = point();
-    const Vec3 axis = normalize(light.position - sq.p);
-    Vec3 t, b;
-    orthonormal_basis(axis == Vec3{} ? Vec3{0, 1, 0} : axis, t, b);
-    const float rot = sample_rotation(s.lit_global[j]);
-    const size_t n = light.rr.size();
-    for (size_t k = 0; k < n; ++k) {
-      const float phi = light.phase[k] + rot;
-      const Vec3 qk = light.position + (t * std::cos(phi) + b * std::sin(phi)) * light.rr[k];
-      const Vec3 to = qk - sq.p;
-      const float d2 = dot(to, to);
-      if (!(d2 > 0.0f)) continue;
-      if (!render::sample_light(sq, to * (1.0f / std::sqrt(d2)), light.power * (light.inv_n / d2), c)) continue;
-      if (ctx.shadows) add(c, Ray{origin(), 0.0f, qk - origin(), 1.0f}, light);
-      else s.accum[pixel] += c;
-    }
+    sphere_light(s, j, light, point(), [&](const Vec3& sample_c, const Vec3& qk) {
+      if (ctx.shadows) add(sample_c, Ray{origin(), 0.0f, qk - origin(), 1.0f}, light);
+      else s.accum[pixel] += sample_c;
+    });
   }
 }
 
@@ -742,7 +755,7 @@ void render_tile(const Context& ctx, const SkyEval& sky, Scratch& s, const Pinho
       else
         ctx.tracer.intersect(r, hits, ts);
     };
-    if (ctx.want_cost) {
+    if (ctx.want_cost) [[unlikely]] {
       // Per-ray queries so the node visits can be charged to their pixel.
       s.hits.assign(n, Hit{});
       for (size_t i = 0; i < n; ++i) {
@@ -843,7 +856,7 @@ void render_tile(const Context& ctx, const SkyEval& sky, Scratch& s, const Pinho
     if (ns > 0 && ctx.history_order) {
       // One region per light, each in shading order: (light, history) runs side by side.
       ensure_size(s.shadow_t, n * ctx.shadow_per_hit);
-      if (ctx.want_cost) {
+      if (ctx.want_cost) [[unlikely]] {
         for (size_t i = 0; i < ns; ++i) {
           TraceStats ts;
           const size_t slot = s.shadow_req[i].slot;
@@ -866,7 +879,7 @@ void render_tile(const Context& ctx, const SkyEval& sky, Scratch& s, const Pinho
     } else if (ns > 0) {
       const std::span<const Ray> shadow_rays(s.shadow_rays.data(), ns);
       s.shadow_t.assign(ns, Vec3{});
-      if (ctx.want_cost) {
+      if (ctx.want_cost) [[unlikely]] {
         for (size_t i = 0; i < ns; ++i) {
           TraceStats ts;
           ctx.tracer.transmittance(shadow_rays.subspan(i, 1), std::span<Vec3>(&s.shadow_t[i], 1), &ts);
