@@ -137,10 +137,12 @@ struct TraceOrder {
   uint32_t keys[kMaxGroups] = {};
   uint32_t counts[kMaxGroups + 1] = {};
 
+  // build() and trace_in_order() are out of line: render_tile is flattened, and a frame within 15
+  // bounces never runs them (history order instead), so inlined they only took code space in its
+  // hot loop; with them and the sphere lights outside, a pool water frame is about 3% faster
+  // (BENCHMARKS.md, 2026-12-05 evening).
+
   /// Fills `order` from per-ray keys; false when it would be the identity (nothing to do).
-  // Out of line, as trace_in_order: render_tile is flattened, and these, which a frame within
-  // 15 bounces never runs (history order instead), took code space in its hot loop; with them
-  // and the sphere lights outside, a pool water frame is about 3% faster (BENCHMARKS.md).
   [[gnu::noinline]] bool build(std::span<const uint32_t> key) {
     const size_t n = key.size();
     std::vector<uint8_t>& g = group_;
@@ -173,8 +175,8 @@ struct TraceOrder {
   /// results) fills one result per ray, \p out receives them in the rays' own positions.
   /// \p sorted_rays and \p sorted_out are scratch.
   template <class Result, class Trace>
-  [[gnu::noinline]] void trace_in_order(std::span<const Ray> rays, std::vector<Ray>& sorted_rays, std::vector<Result>& sorted_out,
-                      std::span<Result> out, Trace&& trace) const {
+  [[gnu::noinline]] void trace_in_order(std::span<const Ray> rays, std::vector<Ray>& sorted_rays,
+                                        std::vector<Result>& sorted_out, std::span<Result> out, Trace&& trace) const {
     const size_t n = order.size();
     sorted_rays.resize(n);
     sorted_out.assign(n, Result{});
@@ -391,30 +393,24 @@ Vec3 medium_attenuation(const Context& ctx, int id, float dist) {
   return Vec3{channel(sigma.x), channel(sigma.y), channel(sigma.z)};
 }
 
-/// The per-pixel rotation of the sphere-light sample spiral. Opaque to the optimiser (GCC's
-/// noipa) so it is computed only for sphere lights, not hoisted out of the light loop for every
-/// hit. Clang has no noipa; noinline there.
-#if defined(__clang__)
-#define SPECULA_OPAQUE [[gnu::noinline]]
-#else
-#define SPECULA_OPAQUE [[gnu::noipa]]
-#endif
-SPECULA_OPAQUE float sample_rotation(uint32_t global_pixel) {
+/// The per-pixel rotation of the sphere-light sample spiral (only sphere_light() computes it, so
+/// it is never hoisted into the light loop of every hit).
+float sample_rotation(uint32_t global_pixel) {
   return 2.0f * kPi * to_unit_float(hash_u32(global_pixel * 0x9E3779B9u + 0x632BE5ABu));
 }
 
-/// The samples of sphere light \p light at lit point \p sq (lit hit \p j): n points of a Vogel
-/// (golden-angle Fibonacci) spiral on the disc the sphere presents to the point, rotated by a
-/// per-pixel hash so neighbouring pixels see different but deterministic patterns. Each sample
-/// carries 1/n of the intensity; \p emit(contribution, sample point) takes each lit one. Out of
+/// The samples of sphere light \p light at lit point \p sq of film pixel \p global_pixel: n
+/// points of a Vogel (golden-angle Fibonacci) spiral on the disc the sphere presents to the point,
+/// rotated by a per-pixel hash so neighbouring pixels see different but deterministic patterns.
+/// Each sample carries 1/n of the intensity; \p emit(contribution, sample point) takes each lit one. Out of
 /// line (like the other paths a typical frame never takes): render_tile's hot loop stays small.
 template <class Emit>
-[[gnu::noinline]] void sphere_light(const Scratch& s, uint32_t j, const LightSetup& light, const render::LitPoint& sq,
+[[gnu::noinline]] void sphere_light(uint32_t global_pixel, const LightSetup& light, const render::LitPoint& sq,
                                     Emit&& emit) {
   const Vec3 axis = normalize(light.position - sq.p);
   Vec3 t, b;
   orthonormal_basis(axis == Vec3{} ? Vec3{0, 1, 0} : axis, t, b);
-  const float rot = sample_rotation(s.lit_global[j]);
+  const float rot = sample_rotation(global_pixel);
   const size_t n = light.rr.size();
   for (size_t k = 0; k < n; ++k) {
     const float phi = light.phase[k] + rot;
@@ -492,7 +488,7 @@ template <class Emit>
       else s.accum[pixel] += c;
       continue;
     }
-    sphere_light(s, j, light, point(), [&](const Vec3& sample_c, const Vec3& qk) {
+    sphere_light(s.lit_global[j], light, point(), [&](const Vec3& sample_c, const Vec3& qk) {
       if (ctx.shadows) add(sample_c, Ray{origin(), 0.0f, qk - origin(), 1.0f}, light);
       else s.accum[pixel] += sample_c;
     });
