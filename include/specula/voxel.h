@@ -39,10 +39,26 @@ struct VoxelGrid {
   static VoxelGrid around(const Aabb& scene_bounds, int depth);
 };
 
+namespace detail {
+/// Spreads the low 21 bits of v so that bit i lands on bit 3i.
+constexpr uint64_t spread3(uint32_t v) {
+  uint64_t x = v & 0x1FFFFFu;
+  x = (x | x << 32) & 0x1F00000000FFFFull;
+  x = (x | x << 16) & 0x1F0000FF0000FFull;
+  x = (x | x << 8) & 0x100F00F00F00F00Full;
+  x = (x | x << 4) & 0x10C30C30C30C30C3ull;
+  x = (x | x << 2) & 0x1249249249249249ull;
+  return x;
+}
+}  // namespace detail
+
 /// Morton (Z-order) code of voxel (x, y, z): bit 3i of the code is bit i of x, 3i+1 of y,
 /// 3i+2 of z. Sorting by code groups the eight children of every octree node together, in
-/// child index order (child index = x_bit | y_bit << 1 | z_bit << 2).
-uint64_t morton_encode(uint32_t x, uint32_t y, uint32_t z);
+/// child index order (child index = x_bit | y_bit << 1 | z_bit << 2). Inline: the voxelizer
+/// encodes every binned triangle's brick (an out-of-line call was a sixth of its binning).
+constexpr uint64_t morton_encode(uint32_t x, uint32_t y, uint32_t z) {
+  return detail::spread3(x) | detail::spread3(y) << 1 | detail::spread3(z) << 2;
+}
 void morton_decode(uint64_t code, uint32_t& x, uint32_t& y, uint32_t& z);
 
 /// Averaged attributes of one occupied voxel (area-weighted over the triangle parts inside it),

@@ -21,16 +21,7 @@ VoxelGrid VoxelGrid::around(const Aabb& scene_bounds, int depth) {
 }
 
 namespace {
-/// Spreads the low 21 bits of v so that bit i lands on bit 3i.
-uint64_t spread3(uint32_t v) {
-  uint64_t x = v & 0x1FFFFFu;
-  x = (x | x << 32) & 0x1F00000000FFFFull;
-  x = (x | x << 16) & 0x1F0000FF0000FFull;
-  x = (x | x << 8) & 0x100F00F00F00F00Full;
-  x = (x | x << 4) & 0x10C30C30C30C30C3ull;
-  x = (x | x << 2) & 0x1249249249249249ull;
-  return x;
-}
+/// Inverse of detail::spread3: gathers bits 0, 3, 6, ... of x into the low 21 bits.
 uint32_t compact3(uint64_t x) {
   x &= 0x1249249249249249ull;
   x = (x ^ (x >> 2)) & 0x10C30C30C30C30C3ull;
@@ -41,10 +32,6 @@ uint32_t compact3(uint64_t x) {
   return static_cast<uint32_t>(x);
 }
 }  // namespace
-
-uint64_t morton_encode(uint32_t x, uint32_t y, uint32_t z) {
-  return spread3(x) | spread3(y) << 1 | spread3(z) << 2;
-}
 
 void morton_decode(uint64_t code, uint32_t& x, uint32_t& y, uint32_t& z) {
   x = compact3(code);
