@@ -1116,12 +1116,11 @@ VoxelSet voxelize(const VoxelizeInput& input, const VoxelizeOptions& options, Vo
           continue;
         }
         // The bricks of the bounding box (closed boxes, as in process_brick).
+        const LatticeBounds bounds(l);
         int64_t b0[3], b1[3];
         for (int k = 0; k < 3; ++k) {
-          const int64_t lo = std::min({l.v[0][k], l.v[1][k], l.v[2][k]});
-          const int64_t hi = std::max({l.v[0][k], l.v[1][k], l.v[2][k]});
-          b0[k] = std::max<int64_t>(((lo + brick_side - 1) >> brick_shift) - 1, 0);
-          b1[k] = std::min<int64_t>(hi >> brick_shift, brick_max);
+          b0[k] = std::max<int64_t>(((bounds.lo[k] + brick_side - 1) >> brick_shift) - 1, 0);
+          b1[k] = std::min<int64_t>(bounds.hi[k] >> brick_shift, brick_max);
         }
         if (!octree && b0[0] == b1[0] && b0[1] == b1[1] && b0[2] == b1[2]) {
           out.push_back({morton_encode(static_cast<uint32_t>(b0[0]), static_cast<uint32_t>(b0[1]),
