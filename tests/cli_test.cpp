@@ -99,6 +99,27 @@ TEST_F(Cli, MissingSceneIsAClearError) {
   EXPECT_FALSE(fs::exists(dir_ / "x.png"));
 }
 
+// An image whose film could not be allocated is refused before the scene is read: the error
+// is about the size although the scene does not even exist (it would otherwise come after the
+// load and the build, seconds into a big scene).
+TEST_F(Cli, AbsurdImageSizeFailsBeforeTheSceneIsLoaded) {
+  const std::string missing = "'" + (dir_ / "nope.obj").string() + "'";
+  RunResult r = run_cli("render " + missing + " --width 32768 --height 32768 -o '" + (dir_ / "x.png").string() + "'", dir_);
+  EXPECT_EQ(r.exit_code, 1);
+  EXPECT_NE(r.err.find("image size 32768x32768 needs 12288 MiB of film (limit 2048 MiB)"), std::string::npos) << r.err;
+  EXPECT_EQ(r.err.find("nope.obj"), std::string::npos) << r.err;
+  EXPECT_EQ(r.out.find("load"), std::string::npos) << r.out;
+  EXPECT_FALSE(fs::exists(dir_ / "x.png"));
+  // The AOV planes count: 16384x8192 is 1.5 GiB of colour alone, 2.5 GiB with a normal AOV.
+  r = run_cli("render " + missing + " --width 16384 --height 8192 --aov normal -o '" + (dir_ / "x.png").string() + "'", dir_);
+  EXPECT_EQ(r.exit_code, 1);
+  EXPECT_NE(r.err.find("needs 3072 MiB of film"), std::string::npos) << r.err;
+  r = run_cli("bench render --scene " + missing + " --sizes 640x480,16384x16384", dir_);
+  EXPECT_EQ(r.exit_code, 1);
+  EXPECT_NE(r.err.find("--sizes: image size 16384x16384 needs 3072 MiB of film"), std::string::npos) << r.err;
+  EXPECT_EQ(r.err.find("nope.obj"), std::string::npos) << r.err;
+}
+
 TEST_F(Cli, BadOptionsAreUsageErrors) {
   EXPECT_EQ(run_cli("render cornell --accel octree", dir_).exit_code, 2);
   EXPECT_EQ(run_cli("render cornell --width 0", dir_).exit_code, 2);

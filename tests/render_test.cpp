@@ -449,7 +449,14 @@ TEST(Render, RejectsAbsurdImageSizes) {
     o.width = w;
     o.height = h;
     EXPECT_THROW(render_whitted(s, *tracer, o), Error) << w << "x" << h;
+    EXPECT_THROW(check_image_size(w, h), Error) << w << "x" << h;  // the same refusal, up front
   }
+  // The film limit (2 GiB) counts the AOV planes: 16384x8192 is 1.5 GiB of colour alone.
+  EXPECT_NO_THROW(check_image_size(32768, 1));
+  EXPECT_NO_THROW(check_image_size(16384, 8192));
+  EXPECT_NO_THROW(check_image_size(16384, 8192, std::vector<Aov>{Aov::Depth}));  // + 0.5 GiB: exactly 2 GiB
+  EXPECT_THROW(check_image_size(16384, 8192, std::vector<Aov>{Aov::Depth, Aov::Cost}), Error);
+  EXPECT_THROW(check_image_size(16384, 8192, std::vector<Aov>{Aov::Normal}), Error);
 }
 
 namespace {

@@ -43,6 +43,11 @@ std::vector<Size> parse_sizes(const std::string& list) {
     if (!(in >> size.width >> x >> size.height) || x != 'x' || (in >> extra) || size.width < 1 ||
         size.height < 1 || size.width > 16384 || size.height > 16384)
       throw Error("--sizes: '" + s + "' is not WxH with 1 <= W, H <= 16384 (e.g. 640x480)");
+    try {
+      check_image_size(size.width, size.height);  // before the scene is loaded
+    } catch (const Error& e) {
+      throw Error(std::string("--sizes: ") + e.what());
+    }
     sizes.push_back(size);
   }
   if (sizes.empty()) throw Error("--sizes: no image size given");

@@ -180,6 +180,8 @@ int render(const RenderOptions& options) {
   std::vector<std::string> outputs{options.output};
   for (Aov a : parse_aovs(options.aovs)) outputs.push_back(aov_path(options.output, a));
   refuse_overwriting_inputs(outputs, {options.scene});
+  // An absurd image size fails now, not after the scene is loaded and its tracer built.
+  check_image_size(options.render.width, options.render.height, parse_aovs(options.aovs));
 
   PreparedScene prepared =
       prepare_scene(options.scene, options.load, options.accel, options.bvh, options.voxel, options.render.threads);

@@ -4,6 +4,7 @@
 
 #include <cstdint>
 #include <functional>
+#include <span>
 #include <string>
 #include <vector>
 
@@ -79,8 +80,13 @@ class PinholeCamera {
 /// tint): what the Tracer is built with so shadow rays can pass through glass and water.
 std::vector<Vec3> shadow_transmittance(const Scene& scene);
 
+/// Throws specula::Error when render_whitted() would refuse this image size: a side outside
+/// 1..32768, or film planes (colour and \p aovs) over 2 GiB. Front ends call it before they load
+/// a scene, so an absurd size fails at once, not after the load and the build.
+void check_image_size(int width, int height, std::span<const Aov> aovs = {});
+
 /// Renders the scene with the iterative Whitted integrator. Bit-identical for any thread
-/// count. Throws specula::Error for an unknown camera or an absurd image size.
+/// count. Throws specula::Error for an unknown camera or an absurd image size (check_image_size).
 Film render_whitted(const Scene& scene, const Tracer& tracer, const RenderOptions& options,
                     RenderStats* stats = nullptr);
 

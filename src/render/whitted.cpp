@@ -915,15 +915,13 @@ Film render_whitted(const Scene& scene, const Tracer& tracer, const RenderOption
   return film;
 }
 
-void render_whitted(const Scene& scene, const Tracer& tracer, const RenderOptions& options, Film& film,
-                    RenderStats* stats) {
-  const Timer timer;
-  const int w = options.width, h = options.height;
+void check_image_size(int width, int height, std::span<const Aov> aovs) {
+  const int w = width, h = height;
   if (w <= 0 || h <= 0 || w > kMaxDimension || h > kMaxDimension)
     throw Error("invalid image size " + std::to_string(w) + "x" + std::to_string(h) +
                 " (each side must be 1.." + std::to_string(kMaxDimension) + ")");
   uint64_t bytes_per_pixel = sizeof(Vec3);
-  for (Aov a : options.aovs) {
+  for (Aov a : aovs) {
     switch (a) {
       case Aov::Depth: bytes_per_pixel += sizeof(float); break;
       case Aov::Normal: bytes_per_pixel += sizeof(Vec3); break;
@@ -936,6 +934,14 @@ void render_whitted(const Scene& scene, const Tracer& tracer, const RenderOption
     throw Error("image size " + std::to_string(w) + "x" + std::to_string(h) + " needs " +
                 std::to_string(pixels * bytes_per_pixel >> 20) + " MiB of film (limit " +
                 std::to_string(kMaxFilmBytes >> 20) + " MiB)");
+}
+
+void render_whitted(const Scene& scene, const Tracer& tracer, const RenderOptions& options, Film& film,
+                    RenderStats* stats) {
+  const Timer timer;
+  const int w = options.width, h = options.height;
+  check_image_size(w, h, options.aovs);
+  const uint64_t pixels = static_cast<uint64_t>(w) * static_cast<uint64_t>(h);
 
   // Camera.
   Camera cam;
