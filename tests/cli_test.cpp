@@ -120,6 +120,31 @@ TEST_F(Cli, AbsurdImageSizeFailsBeforeTheSceneIsLoaded) {
   EXPECT_EQ(r.err.find("nope.obj"), std::string::npos) << r.err;
 }
 
+// The voxelizer's refusal names --memory-limit: every command that voxelizes a scene takes it.
+TEST_F(Cli, VoxelizingCommandsTakeTheMemoryLimit) {
+  const std::string out = " -o '" + (dir_ / "x.png").string() + "'";
+  RunResult r = run_cli("render cornell --accel svo --depth 5 --width 8 --height 8 --memory-limit 1K" + out, dir_);
+  EXPECT_EQ(r.exit_code, 1);
+  EXPECT_NE(r.err.find("exceeds the memory limit of 1024 bytes"), std::string::npos) << r.err;
+  EXPECT_NE(r.err.find("lattice copy of the"), std::string::npos) << r.err;  // not "0 voxel-triangle pairs"
+  EXPECT_NE(r.err.find("--memory-limit"), std::string::npos) << r.err;
+  EXPECT_FALSE(fs::exists(dir_ / "x.png"));
+  r = run_cli("render cornell --accel grid --depth 5 --width 8 --height 8 --memory-limit 100K" + out, dir_);
+  EXPECT_EQ(r.exit_code, 1);
+  EXPECT_NE(r.err.find("upper bound for"), std::string::npos) << r.err;
+  EXPECT_NE(r.err.find("limit of 102400 bytes"), std::string::npos) << r.err;
+  r = run_cli("render cornell --accel svo --depth 5 --width 8 --height 8 --memory-limit 1G" + out, dir_);
+  EXPECT_EQ(r.exit_code, 0) << r.err;
+  EXPECT_TRUE(fs::exists(dir_ / "x.png"));
+  r = run_cli("bench render --scene cornell --accel svo --depth 5 --sizes 8x8 --frames 1 --memory-limit 1K", dir_);
+  EXPECT_EQ(r.exit_code, 1);
+  EXPECT_NE(r.err.find("exceeds the memory limit of 1024 bytes"), std::string::npos) << r.err;
+  r = run_cli("bench svo --scene cornell --depths 5 --sizes 8x8 --memory-limit 1K", dir_);
+  EXPECT_EQ(r.exit_code, 1);
+  EXPECT_NE(r.err.find("exceeds the memory limit of 1024 bytes"), std::string::npos) << r.err;
+  EXPECT_EQ(run_cli("render cornell --memory-limit lots" + out, dir_).exit_code, 2);
+}
+
 TEST_F(Cli, BadOptionsAreUsageErrors) {
   EXPECT_EQ(run_cli("render cornell --accel octree", dir_).exit_code, 2);
   EXPECT_EQ(run_cli("render cornell --width 0", dir_).exit_code, 2);

@@ -199,6 +199,7 @@ int bench_svo(const BenchSvoOptions& options) {
     vo.kind = "svo";
     vo.depth = depths[di];
     vo.threads = ro.threads;
+    vo.memory_limit = options.memory_limit;
     SceneVoxelInfo info;
     const auto svo = voxelize_scene(scene, vo, &info);
     std::printf("depth %d: %s voxels, voxelize %.1f ms, octree %.1f ms, %.2f MiB (%.1f bytes/voxel)\n", depths[di],

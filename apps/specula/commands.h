@@ -122,6 +122,7 @@ struct BenchSvoOptions {
   int frames = 1;
   specula::RenderOptions render;
   LoadOptions load;
+  uint64_t memory_limit = 0;  ///< the voxelizer's (SceneVoxelOptions::memory_limit)
 };
 
 /// `specula bench svo`: seed 000's frame-rate table (octree depths x views) with ours beside the

@@ -76,6 +76,15 @@ CLI::Option* add_size_option(CLI::App* app, const std::string& name, uint64_t& t
       ->default_str(format_bytes(target));
 }
 
+/// --memory-limit of the commands that voxelize a scene (render and bench render with --accel
+/// svo|grid, bench svo); `voxelize` has its own, with --no-memory-limit.
+void add_memory_limit_option(CLI::App* app, uint64_t& target, const std::string& when) {
+  add_size_option(app, "--memory-limit", target,
+                  when + "refuse up front when the voxelizer's memory estimate exceeds this; units K, M, G, T "
+                  "(powers of 1024); 0 = half the physical memory")
+      ->default_str("0 = " + format_bytes(specula::default_voxelize_memory_limit()));
+}
+
 /// Input limits (docs/SECURITY.md, "Limits"): every command that loads a scene takes them.
 void add_limit_options(CLI::App* app, LoadOptions& load) {
   add_size_option(app, "--max-file-size", load.limits.max_file_bytes,
@@ -148,6 +157,7 @@ void add_integrator_options(CLI::App* app, std::string& accel, specula::RenderOp
       ->default_str("cubes");
   add_size_option(app, "--max-grid-memory", voxel.tracer.max_grid_bytes,
                   "--accel grid: refuse a dense voxel bitmask larger than this (depth 11 takes 1 GiB)");
+  add_memory_limit_option(app, voxel.memory_limit, "--accel svo|grid: ");
   app->add_option("--lod", voxel.tracer.lod, "octree level of detail: trace nodes at this depth as leaves (0 = full depth)")
       ->check(CLI::Range(0, kMaxVoxelDepth))
       ->capture_default_str();
@@ -294,6 +304,7 @@ static int run(int argc, char** argv) {
   bench_svo_cmd->add_option("--threads", bench_svo.render.threads, "worker threads (0 = all cores)")
       ->check(CLI::Range(0, 1024))
       ->capture_default_str();
+  add_memory_limit_option(bench_svo_cmd, bench_svo.memory_limit, "each depth: ");
   add_data_option(bench_svo_cmd, bench_svo.load);
 
   // voxelize

@@ -4,6 +4,7 @@
 /// Whitted integrator shades the hits through VoxelTracer::attributes().
 #pragma once
 
+#include <cstdint>
 #include <memory>
 #include <string>
 
@@ -17,6 +18,9 @@ struct SceneVoxelOptions {
   int depth = 8;             ///< voxel depth: 2^depth voxels along the scene's largest extent
   VoxelTracerOptions tracer;  ///< hit mode, level of detail, grid memory limit
   int threads = 0;           ///< voxelizer and build threads; 0 = all
+  /// The voxelizer's up-front memory limit (VoxelizeOptions::memory_limit): 0 = half the
+  /// physical memory, UINT64_MAX = none.
+  uint64_t memory_limit = 0;
 };
 
 struct SceneVoxelInfo {

@@ -16,6 +16,7 @@ std::unique_ptr<VoxelTracer> voxelize_scene(const Scene& scene, const SceneVoxel
   VoxelizeOptions v;
   v.depth = options.depth;
   v.threads = options.threads;
+  v.memory_limit = options.memory_limit;
   v.bounds = scene.bounds();  // seed 000's grid around the whole scene
   VoxelizeStats stats;
   const VoxelSet set = voxelize(VoxelizeInput{scene.positions, scene.indices, attrs}, v, &stats);

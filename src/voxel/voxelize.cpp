@@ -1060,18 +1060,23 @@ VoxelSet voxelize(const VoxelizeInput& input, const VoxelizeOptions& options, Vo
   st.threads = chk.threads;
   st.triangles = chk.triangles;
   st.memory_limit = limit_of(options);
+  // \p pairs < 0: \p bytes is the lattice copy of the vertices alone (checked before the estimate).
   auto refuse = [&](double bytes, double pairs, double voxels) {
+    char what[160];
+    if (pairs < 0)
+      std::snprintf(what, sizeof what, "for the lattice copy of the %zu vertices alone", input.positions.size());
+    else
+      std::snprintf(what, sizeof what, "upper bound for %.4g voxel-triangle pairs, %.4g voxels", pairs, voxels);
     char buf[512];
     std::snprintf(buf, sizeof buf,
-                  "voxelize: depth %d would need up to %.4g bytes (%s; upper bound for %.4g voxel-triangle pairs, "
-                  "%.4g voxels) which exceeds the memory limit of %" PRIu64
+                  "voxelize: depth %d would need up to %.4g bytes (%s; %s) which exceeds the memory limit of %" PRIu64
                   " bytes (%s); lower the depth or raise the limit (--memory-limit)",
-                  options.depth, bytes, bytes_text(bytes).c_str(), pairs, voxels, st.memory_limit,
+                  options.depth, bytes, bytes_text(bytes).c_str(), what, st.memory_limit,
                   bytes_text(static_cast<double>(st.memory_limit)).c_str());
     throw Error(buf);
   };
   // The lattice copy of the positions comes first (the estimate needs it): check it alone.
-  if (lattice_bytes(input) > static_cast<double>(st.memory_limit)) refuse(lattice_bytes(input), 0, 0);
+  if (lattice_bytes(input) > static_cast<double>(st.memory_limit)) refuse(lattice_bytes(input), -1, 0);
 
   tbb::task_arena arena(chk.threads);
   VoxelSet result;
