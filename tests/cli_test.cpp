@@ -145,6 +145,44 @@ TEST_F(Cli, VoxelizingCommandsTakeTheMemoryLimit) {
   EXPECT_EQ(run_cli("render cornell --memory-limit lots" + out, dir_).exit_code, 2);
 }
 
+// Mistakes that only the options show fail before any work: an output that cannot be written,
+// contradicting options. Each run names a scene that does not exist, so an error about the
+// scene would show that the load came first.
+TEST_F(Cli, OutputAndOptionMistakesFailBeforeTheLoad) {
+  const std::string missing = "'" + (dir_ / "nope.obj").string() + "'";
+  const auto expect_early = [&](const std::string& args, const std::string& message) {
+    const RunResult r = run_cli(args, dir_);
+    EXPECT_EQ(r.exit_code, 1) << args;
+    EXPECT_NE(r.err.find(message), std::string::npos) << args << "\n" << r.err;
+    EXPECT_EQ(r.err.find("nope.obj"), std::string::npos) << args << "\n" << r.err;
+    EXPECT_EQ(r.out.find("load"), std::string::npos) << args << "\n" << r.out;
+  };
+  const std::string no_dir = (dir_ / "no-such-folder" / "x.png").string();
+  expect_early("render " + missing + " -o '" + no_dir + "'", "no-such-folder does not exist");
+  fs::create_directory(dir_ / "folder.png");
+  expect_early("render " + missing + " -o '" + (dir_ / "folder.png").string() + "'", "is a directory");
+  expect_early("voxelize " + missing + " --depth 4 -o '" + (dir_ / "no-such-folder" / "v.svo").string() + "'",
+               "does not exist");
+  expect_early("voxelize " + missing + " --depth 4 --format xyz -o '" + (dir_ / "v.svo").string() + "'",
+               "--format xyz with -o");
+  expect_early("render " + missing + " --accel svo --depth 6 --lod 9", "--lod 9 is deeper than the octree (--depth 6)");
+  expect_early("render " + missing + " --accel grid --lod 2", "--lod needs --accel svo");
+}
+
+// The same check for a .svo file, whose depth is only known once it is read.
+TEST_F(Cli, LodDeeperThanAnSvoFileIsAnError) {
+  const fs::path mesh = write("quad.obj", kQuadObj);
+  const fs::path svo = dir_ / "quad.svo";
+  ASSERT_EQ(run_cli("voxelize '" + mesh.string() + "' --depth 3 -o '" + svo.string() + "'", dir_).exit_code, 0);
+  const std::string out = " -o '" + (dir_ / "x.png").string() + "' --width 8 --height 8";
+  RunResult r = run_cli("render '" + svo.string() + "' --lod 4" + out, dir_);
+  EXPECT_EQ(r.exit_code, 1);
+  EXPECT_NE(r.err.find("has depth 3 (use 1..3, or 0 for full depth)"), std::string::npos) << r.err;
+  EXPECT_FALSE(fs::exists(dir_ / "x.png"));
+  r = run_cli("render '" + svo.string() + "' --lod 3" + out, dir_);
+  EXPECT_EQ(r.exit_code, 0) << r.err;
+}
+
 TEST_F(Cli, BadOptionsAreUsageErrors) {
   EXPECT_EQ(run_cli("render cornell --accel octree", dir_).exit_code, 2);
   EXPECT_EQ(run_cli("render cornell --width 0", dir_).exit_code, 2);

@@ -65,6 +65,9 @@ PreparedScene prepare_scene(const std::string& spec, const LoadOptions& load, co
     VoxelTracerOptions t = voxel_options.tracer;
     t.threads = threads;
     auto svo = std::make_unique<SparseVoxelOctree>(read_svo(spec, t));
+    if (t.lod > svo->grid().depth)
+      throw Error("--lod " + std::to_string(t.lod) + ": " + spec + " has depth " + std::to_string(svo->grid().depth) +
+                  " (use 1.." + std::to_string(svo->grid().depth) + ", or 0 for full depth)");
     out.load_ms = timer.ms();
     out.scene = svo_scene(*svo, std::filesystem::path(spec).filename().string());
     out.bytes = svo->memory_bytes();
@@ -74,12 +77,11 @@ PreparedScene prepare_scene(const std::string& spec, const LoadOptions& load, co
     out.tracer = std::move(svo);
     return out;
   }
-  out.scene = load_timed(spec, load, out.load_ms);
-  const Scene& scene = out.scene;
-  std::printf("scene    %s: %s triangles, %zu materials, %zu lights, %zu cameras\n",
-              scene.name.empty() ? spec.c_str() : scene.name.c_str(), with_thousands(scene.triangle_count()).c_str(),
-              scene.materials.size(), scene.lights.size(), scene.cameras.size());
-  std::printf("load     %9.2f ms\n", out.load_ms);
+  // The options first: a contradiction fails before the scene is loaded.
+  if (accel == "svo" && voxel_options.tracer.lod > voxel_options.depth)
+    throw Error("--lod " + std::to_string(voxel_options.tracer.lod) + " is deeper than the octree (--depth " +
+                std::to_string(voxel_options.depth) + "): use 1.." + std::to_string(voxel_options.depth) +
+                ", or 0 for full depth");
   if (accel == "grid" && voxel_options.tracer.lod > 0)
     throw Error("--lod needs --accel svo: the voxel grid has no coarser levels");
   if (accel != "svo" && accel != "grid" && (voxel_options.tracer.lod > 0 || voxel_options.tracer.mode != VoxelHitMode::Cubes))
@@ -89,6 +91,12 @@ PreparedScene prepare_scene(const std::string& spec, const LoadOptions& load, co
                 format_bytes(VoxelGridTracer::bitmask_bytes(voxel_options.depth)) + ", over the limit of " +
                 format_bytes(voxel_options.tracer.max_grid_bytes, true) +
                 " (--max-grid-memory raises it; --accel svo stores only the occupied voxels)");
+  out.scene = load_timed(spec, load, out.load_ms);
+  const Scene& scene = out.scene;
+  std::printf("scene    %s: %s triangles, %zu materials, %zu lights, %zu cameras\n",
+              scene.name.empty() ? spec.c_str() : scene.name.c_str(), with_thousands(scene.triangle_count()).c_str(),
+              scene.materials.size(), scene.lights.size(), scene.cameras.size());
+  std::printf("load     %9.2f ms\n", out.load_ms);
   if (accel == "svo" || accel == "grid") {
     SceneVoxelOptions v = voxel_options;
     v.kind = accel;
@@ -180,8 +188,10 @@ int render(const RenderOptions& options) {
   std::vector<std::string> outputs{options.output};
   for (Aov a : parse_aovs(options.aovs)) outputs.push_back(aov_path(options.output, a));
   refuse_overwriting_inputs(outputs, {options.scene});
-  // An absurd image size fails now, not after the scene is loaded and its tracer built.
+  // An absurd image size or an output that cannot be written fails now, not after the scene is
+  // loaded, its tracer built and the frame rendered.
   check_image_size(options.render.width, options.render.height, parse_aovs(options.aovs));
+  for (const std::string& out : outputs) check_output_path(out);
 
   PreparedScene prepared =
       prepare_scene(options.scene, options.load, options.accel, options.bvh, options.voxel, options.render.threads);

@@ -298,6 +298,10 @@ int voxelize(const VoxelizeCommandOptions& o) {
     const std::string ext = std::filesystem::path(o.output).extension().string();
     if (ext != ".xyz" && ext != ".svo")
       throw Error(o.output + ": unsupported voxel output '" + ext + "' (supported: .xyz, .svo)");
+    if (o.format == "xyz" && ext != ".xyz")
+      throw Error("--format xyz with -o " + o.output + ": the file's extension chooses its format (" + ext +
+                  "); name it .xyz, or drop --format");
+    check_output_path(o.output);  // before the load and the voxelization
   }
   const bool xyz_to_stdout = o.format == "xyz" && o.output.empty();
   FILE* info = xyz_to_stdout ? stderr : stdout;

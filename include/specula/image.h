@@ -23,6 +23,12 @@ enum class Tonemap : uint8_t { Clamp, Reinhard };
 void write_file_atomic(const std::string& path, std::span<const uint8_t> bytes,
                        const std::string& protect = {});
 
+/// Throws specula::Error at once when write_file_atomic(\p path) is bound to fail: \p path is a
+/// folder, or the folder it would go in does not exist, is not a folder or cannot be written
+/// to. Commands call it before long work (loading, building, rendering, voxelizing), so a
+/// mistyped output path fails in milliseconds, not after the work is done.
+void check_output_path(const std::string& path);
+
 /// For a program that exits on a signal (Ctrl-C): removes the temporary file of every
 /// write_file_atomic in progress and makes every write_file_atomic from now on, and every one
 /// about to rename its temporary file, wait forever; the caller then exits (_exit). Each output

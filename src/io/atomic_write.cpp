@@ -55,6 +55,20 @@ void stop_atomic_writes() {
   p.temp_files.clear();
 }
 
+void check_output_path(const std::string& path) {
+  if (path.empty()) throw Error("write: empty output path");
+  const fs::path target(path);
+  std::error_code ec;
+  if (fs::is_directory(target, ec)) throw file_error(path, "is a directory");
+  const fs::path dir = target.has_parent_path() ? target.parent_path() : fs::path(".");
+  const fs::file_status st = fs::status(dir, ec);
+  if (!fs::exists(st)) throw file_error(path, "its folder " + dir.string() + " does not exist");
+  if (!fs::is_directory(st)) throw file_error(path, dir.string() + " is not a folder");
+  // Creating the temporary file needs write and search permission on the folder.
+  if (::access(dir.c_str(), W_OK | X_OK) != 0)
+    throw file_error(path, "cannot write to its folder " + dir.string() + ": " + std::strerror(errno));
+}
+
 void write_file_atomic(const std::string& path, std::span<const uint8_t> bytes,
                        const std::string& protect) {
   if (path.empty()) throw Error("write: empty output path");
