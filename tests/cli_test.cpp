@@ -183,6 +183,26 @@ TEST_F(Cli, LodDeeperThanAnSvoFileIsAnError) {
   EXPECT_EQ(r.exit_code, 0) << r.err;
 }
 
+// Results printed to a standard output that cannot take them (a full disk: /dev/full) end in an
+// error, not in success with a truncated result.
+TEST_F(Cli, FailedWritesToStandardOutputAreErrors) {
+  if (!fs::exists("/dev/full")) GTEST_SKIP() << "no /dev/full on this system";
+  const fs::path mesh = write("quad.obj", kQuadObj);
+  const fs::path rays = write("rays.txt", "0 0 1 0 0 -1\n0.5 0.5 1 0 0 -1\n");
+  const fs::path err = dir_ / "stderr.txt";
+  const auto run_full = [&](const std::string& args) {
+    const std::string cmd = std::string("'") + SPECULA_CLI_PATH + "' " + args + " >/dev/full 2>'" + err.string() + "' </dev/null";
+    const int status = std::system(cmd.c_str());
+    return WIFEXITED(status) ? WEXITSTATUS(status) : -1;
+  };
+  EXPECT_EQ(run_full("trace '" + mesh.string() + "' --rays '" + rays.string() + "'"), 1);
+  EXPECT_NE(slurp(err).find("writing the standard output failed"), std::string::npos) << slurp(err);
+  EXPECT_EQ(run_full("voxelize '" + mesh.string() + "' --depth 8 --format xyz"), 1);
+  EXPECT_NE(slurp(err).find("writing the standard output failed"), std::string::npos) << slurp(err);
+  // The same commands succeed when the output can be written.
+  EXPECT_EQ(run_cli("trace '" + mesh.string() + "' --rays '" + rays.string() + "'", dir_).exit_code, 0);
+}
+
 TEST_F(Cli, BadOptionsAreUsageErrors) {
   EXPECT_EQ(run_cli("render cornell --accel octree", dir_).exit_code, 2);
   EXPECT_EQ(run_cli("render cornell --width 0", dir_).exit_code, 2);

@@ -16,7 +16,9 @@
 
 #include <CLI/CLI.hpp>
 #include <algorithm>
+#include <cerrno>
 #include <cstdio>
+#include <cstring>
 #include <filesystem>
 #include <iostream>
 #include <string>
@@ -319,25 +321,36 @@ static int run(int argc, char** argv) {
     return app.exit(e) == 0 ? 0 : 2;
   }
 
+  int rc = 0;
   try {
-    if (render_cmd->parsed()) return cli::render(render);
-    if (trace_cmd->parsed()) return cli::trace(trace);
-    if (info_cmd->parsed()) return cli::info(info);
-    if (bench_trace_cmd->parsed()) return cli::bench_trace(bench);
-    if (bench_render_cmd->parsed()) return cli::bench_render(bench_render);
-    if (bench_svo_cmd->parsed()) return cli::bench_svo(bench_svo);
-    if (voxelize_cmd->parsed()) return cli::voxelize(voxelize);
+    if (render_cmd->parsed()) rc = cli::render(render);
+    else if (trace_cmd->parsed()) rc = cli::trace(trace);
+    else if (info_cmd->parsed()) rc = cli::info(info);
+    else if (bench_trace_cmd->parsed()) rc = cli::bench_trace(bench);
+    else if (bench_render_cmd->parsed()) rc = cli::bench_render(bench_render);
+    else if (bench_svo_cmd->parsed()) rc = cli::bench_svo(bench_svo);
+    else if (voxelize_cmd->parsed()) rc = cli::voxelize(voxelize);
   } catch (const specula::Error& e) {
     std::fprintf(stderr, "specula: error: %s\n", e.what());
-    return 1;
+    rc = 1;
   } catch (const std::bad_alloc&) {
     std::fprintf(stderr, "specula: error: out of memory\n");
-    return 1;
+    rc = 1;
   } catch (const std::exception& e) {
     std::fprintf(stderr, "specula: error: %s\n", e.what());
+    rc = 1;
+  }
+  // Results go to the standard output (trace hits, voxelize --format xyz, bench --json): a write
+  // that failed there (a full disk) must not end in success with a truncated result.
+  errno = 0;
+  const bool flushed = std::fflush(stdout) == 0;
+  if (!flushed || std::ferror(stdout)) {
+    const int err = errno;
+    std::fprintf(stderr, "specula: error: writing the standard output failed%s%s\n", !flushed && err ? ": " : "",
+                 !flushed && err ? std::strerror(err) : "");
     return 1;
   }
-  return 0;
+  return rc;
 }
 
 int main(int argc, char** argv) {
