@@ -333,6 +333,28 @@ TEST(LoadNaN, TrianglesWithNonFiniteVerticesAreDroppedWithOneWarning) {
   fs::remove_all(d);
 }
 
+TEST(LoadDegenerate, ZeroAreaTrianglesAreKeptButAFileOfNothingElseIsAnError) {
+  const fs::path d = test::temp_dir("degenerate");
+  // One good triangle among degenerate ones (collinear, repeated vertex): all kept, file order.
+  write_text(d / "some.obj", "v 0 0 0\nv 1 1 1\nv 2 2 2\nv 1 0 0\nv 0 1 0\nf 1 2 3\nf 1 1 4\nf 1 4 5\n");
+  EXPECT_EQ(load_obj(d / "some.obj", quiet()).triangle_count(), 3u);
+  // Only degenerate ones: no surface.
+  write_text(d / "line.obj", "v 0 0 0\nv 1 1 1\nv 2 2 2\nf 1 2 3\nf 3 2 1\n");
+  try {
+    (void)load_scene((d / "line.obj").string(), quiet());
+    ADD_FAILURE() << "a file of zero-area triangles loaded";
+  } catch (const Error& e) {
+    const std::string msg = e.what();
+    EXPECT_NE(msg.find("line.obj"), std::string::npos) << msg;
+    EXPECT_NE(msg.find("all 2 triangles have zero area"), std::string::npos) << msg;
+  }
+  write_text(d / "line.ply", "ply\nformat ascii 1.0\nelement vertex 3\nproperty float x\nproperty float y\n"
+                             "property float z\nelement face 1\nproperty list uchar int vertex_indices\nend_header\n"
+                             "0 0 0\n1 0 0\n2 0 0\n3 0 1 2\n");
+  EXPECT_THROW((void)load_scene((d / "line.ply").string(), quiet()), Error);
+  fs::remove_all(d);
+}
+
 TEST(ObjLoader, ExponentsOfTenOrMoreDigitsAreRefusedWithTheirLine) {
   // tinyobjloader overflows an int reading them (fuzz_obj); shorter ones, zero-padded ones
   // included, load as usual.

@@ -338,6 +338,17 @@ void validate_scene(const Scene& scene, const std::string& file) {
   } catch (const Error& e) {
     throw file_error(file, e.what());
   }
+  // Degenerate triangles are kept (file order is triangle order), but a file of nothing else
+  // has no surface: every ray would miss and every voxel set be empty or a wireframe.
+  const size_t n = scene.triangle_count();
+  for (size_t t = 0; t < n; ++t) {
+    const Vec3& a = scene.positions[scene.indices[3 * t]];
+    const Vec3 c = cross(scene.positions[scene.indices[3 * t + 1]] - a, scene.positions[scene.indices[3 * t + 2]] - a);
+    if (c.x != 0.0f || c.y != 0.0f || c.z != 0.0f) return;
+  }
+  if (n > 0)
+    throw file_error(file, "no surface: " + std::string(n == 1 ? "its one triangle has" : "all " + std::to_string(n) + " triangles have") +
+                               " zero area (collinear or repeated vertices)");
 }
 
 
