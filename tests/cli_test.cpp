@@ -423,6 +423,22 @@ TEST_F(Cli, VoxelizeToSvoThenRenderTheFile) {
   const RunResult b = run_cli("render '" + bad.string() + "' -o '" + png.string() + "'", dir_);
   EXPECT_EQ(b.exit_code, 1);
   EXPECT_NE(b.err.find("bad.svo"), std::string::npos) << b.err;
+  // info describes the file; the commands that need triangles say which ones take it.
+  const RunResult i = run_cli("info '" + svo.string() + "'", dir_);
+  ASSERT_EQ(i.exit_code, 0) << i.err;
+  EXPECT_NE(i.out.find("depth      5  (32^3 voxels"), std::string::npos) << i.out;
+  EXPECT_NE(i.out.find("voxels     "), std::string::npos) << i.out;
+  EXPECT_NE(i.out.find("bytes/voxel"), std::string::npos) << i.out;
+  const RunResult ib = run_cli("info '" + bad.string() + "'", dir_);
+  EXPECT_EQ(ib.exit_code, 1);
+  EXPECT_NE(ib.err.find("bad.svo"), std::string::npos) << ib.err;
+  const fs::path rays = write("rays.txt", "0 0 1 0 0 -1\n");
+  for (const std::string& cmd : {"trace '" + svo.string() + "' --rays '" + rays.string() + "'",
+                                 "voxelize '" + svo.string() + "' --depth 3", "bench trace --mesh '" + svo.string() + "'"}) {
+    const RunResult t = run_cli(cmd, dir_);
+    EXPECT_EQ(t.exit_code, 1) << cmd;
+    EXPECT_NE(t.err.find("holds voxels, not triangles"), std::string::npos) << cmd << "\n" << t.err;
+  }
 }
 
 TEST_F(Cli, BenchSvoPrintsSeedTablesContourCostAndPsnr) {

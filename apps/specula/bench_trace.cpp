@@ -235,6 +235,7 @@ int bench_trace(const BenchTraceOptions& options) {
   if (options.width <= 0 || options.height <= 0 || options.width > 16384 || options.height > 16384)
     throw Error("bench trace: --width/--height must be in 1..16384");
   const std::string spec = options.mesh.empty() ? options.scene : options.mesh;
+  refuse_octree_input(spec, "bench trace");
   Scene scene = load_scene(spec, options.load);
   if (scene.cameras.empty()) add_default_camera_and_light(scene);
   const int threads = options.threads > 0 ? options.threads : tbb::info::default_concurrency();

@@ -124,6 +124,13 @@ PreparedScene prepare_scene(const std::string& spec, const LoadOptions& load, co
   return out;
 }
 
+void refuse_octree_input(const std::string& spec, const std::string& command) {
+  if (ends_with_svo(spec))
+    throw Error(spec + ": an .svo file holds voxels, not triangles; '" + command +
+                "' needs a triangle scene ('specula render FILE.svo' renders it, 'specula info FILE.svo' "
+                "describes it)");
+}
+
 Scene load_timed(const std::string& spec, const LoadOptions& load, double& ms) {
   Timer t;
   Scene scene = load_scene(spec, load);
@@ -283,6 +290,7 @@ std::vector<Ray> read_rays(const std::string& path) {
 }  // namespace
 
 int trace(const TraceOptions& options) {
+  refuse_octree_input(options.scene, "trace");
   double load_ms = 0;
   Scene scene = load_timed(options.scene, options.load, load_ms);
   if (options.rays != "-") check_input_size(options.rays, options.load.limits);
@@ -345,6 +353,25 @@ int trace(const TraceOptions& options) {
 }
 
 int info(const InfoOptions& options) {
+  if (ends_with_svo(options.scene)) {  // an octree file (voxelize -o): its header and sizes
+    check_input_size(options.scene, options.load.limits);
+    const Timer timer;
+    const SparseVoxelOctree svo = read_svo(options.scene);
+    const double ms = timer.ms();
+    const SvoInfo i = svo.info();
+    const VoxelGrid& g = svo.grid();
+    const Aabb b = g.bounds();
+    std::printf("octree     %s  (read and checked in %.2f ms)\n", options.scene.c_str(), ms);
+    std::printf("depth      %d  (%u^3 voxels of side %g)\n", g.depth, g.resolution(), static_cast<double>(g.voxel_size()));
+    std::printf("bounds     [%g %g %g] - [%g %g %g]  (cube side %g)\n", b.min.x, b.min.y, b.min.z, b.max.x, b.max.y,
+                b.max.z, static_cast<double>(g.side));
+    std::printf("voxels     %s\n", with_thousands(i.voxels).c_str());
+    std::printf("nodes      %s\n", with_thousands(i.nodes).c_str());
+    std::printf("memory     %s bytes  (%.2f MiB, %.1f bytes/voxel, %.2f of them nodes)\n",
+                with_thousands(i.bytes).c_str(), static_cast<double>(i.bytes) / 1048576.0, i.bytes_per_voxel,
+                i.node_bytes_per_voxel);
+    return 0;
+  }
   double load_ms = 0;
   const Scene scene = load_timed(options.scene, options.load, load_ms);
   const Aabb b = scene.bounds();

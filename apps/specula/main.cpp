@@ -240,7 +240,8 @@ static int run(int argc, char** argv) {
   // info
   cli::InfoOptions info;
   CLI::App* info_cmd = app.add_subcommand(
-      "info", "Print what the loader saw: meshes, triangles, materials, lights, cameras, bounds");
+      "info", "Print what the loader saw: meshes, triangles, materials, lights, cameras, bounds; for an .svo octree "
+              "file (voxelize -o): depth, bounds, voxels, nodes and memory");
   info_cmd->add_option("scene", info.scene, kSceneHelp)->required();
   add_data_option(info_cmd, info.load);
 

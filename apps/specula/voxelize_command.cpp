@@ -100,6 +100,7 @@ struct Loaded {
 };
 
 Loaded load(const VoxelizeCommandOptions& o) {
+  refuse_octree_input(o.scene, "voxelize");
   Loaded l;
   Timer t;
   l.scene = load_scene(o.scene, o.load);
