@@ -71,15 +71,13 @@ void check_output_path(const std::string& path) {
 
 void write_file_atomic(const std::string& path, std::span<const uint8_t> bytes,
                        const std::string& protect) {
-  if (path.empty()) throw Error("write: empty output path");
+  check_output_path(path);  // not a folder; its folder exists and is writable
   const fs::path target(path);
   if (!protect.empty()) {
     std::error_code ec;
     if (fs::exists(target, ec) && fs::equivalent(target, fs::path(protect), ec))
       throw file_error(path, "refusing to overwrite the input file");
   }
-  std::error_code ec;
-  if (fs::is_directory(target, ec)) throw file_error(path, "is a directory");
 
   // The temporary file lives in the same folder so rename() is atomic (same file system).
   const fs::path dir = target.has_parent_path() ? target.parent_path() : fs::path(".");
