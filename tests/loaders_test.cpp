@@ -596,6 +596,22 @@ TEST(JsonScene, ErrorsNameTheKeyPathAndPosition) {
   fs::remove_all(d);
 }
 
+TEST(JsonScene, AReferenceToAFolderIsNotAFile) {
+  const fs::path d = test::temp_dir("jsonfolder");
+  fs::create_directories(d / "sky.png");
+  fs::create_directories(d / "mesh.obj");
+  write_text(d / "s.json", R"({"meshes": [{"builtin": "box"}], "sky": {"type": "image", "image": "sky.png"}})");
+  std::string msg = test::error_of([&] { load_json_scene(d / "s.json", quiet()); });
+  EXPECT_NE(msg.find("sky.image: 'sky.png' is not a regular file"), std::string::npos) << msg;
+  write_text(d / "m.json", R"({"meshes": [{"file": "mesh.obj"}]})");
+  msg = test::error_of([&] { load_json_scene(d / "m.json", quiet()); });
+  EXPECT_NE(msg.find("'mesh.obj' is not a regular file"), std::string::npos) << msg;
+  write_text(d / "n.json", R"({"meshes": [{"file": "none.obj"}]})");
+  msg = test::error_of([&] { load_json_scene(d / "n.json", quiet()); });
+  EXPECT_NE(msg.find("'none.obj' not found"), std::string::npos) << msg;
+  fs::remove_all(d);
+}
+
 TEST(LoadScene, DispatchesByCaseInsensitiveExtensionAndNamesTheFile) {
   const fs::path d = test::temp_dir("dispatch");
   write_text(d / "UP.OBJ", obj_text());

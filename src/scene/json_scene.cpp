@@ -237,7 +237,9 @@ class JsonSceneLoader {
         file = detail::confined_path(dir_, ref, why);
         if (file.empty()) fail(where + ".file: " + why);
         std::error_code ec;
-        if (!fs::is_regular_file(file, ec)) fail(where + ".file: '" + ref + "' not found in " + (dir_.empty() ? std::string(".") : dir_.string()));
+        if (!fs::is_regular_file(file, ec))
+          fail(where + ".file: '" + ref + (fs::exists(file, ec) ? "' is not a regular file" : "' not found") + " in " +
+               (dir_.empty() ? std::string(".") : dir_.string()));
       } else {
         const std::string ref = get_string(m["data"], where + ".data");
         if (ref.find('/') != std::string::npos || ref.find('\\') != std::string::npos || ref == "..")
@@ -411,7 +413,8 @@ class JsonSceneLoader {
       const fs::path p = detail::confined_path(dir_, ref, why);
       if (p.empty()) fail(where + ".image: " + why);
       std::error_code ec;
-      if (!fs::is_regular_file(p, ec)) fail(where + ".image: '" + ref + "' not found");
+      if (!fs::is_regular_file(p, ec))
+        fail(where + ".image: '" + ref + (fs::exists(p, ec) ? "' is not a regular file" : "' not found"));
       sky.image_path = p.string();
     } else if (s.contains("image")) {
       detail::warn(options_, file_ + ": " + where + ".image: ignored for a " + type + " sky");
