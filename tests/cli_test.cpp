@@ -203,6 +203,18 @@ TEST_F(Cli, FailedWritesToStandardOutputAreErrors) {
   EXPECT_EQ(run_cli("trace '" + mesh.string() + "' --rays '" + rays.string() + "'", dir_).exit_code, 0);
 }
 
+// EXR images are linear: a tone mapping asked for with one is reported as not applied.
+TEST_F(Cli, TonemapWithAnExrImageIsAWarning) {
+  const std::string args = " --width 8 --height 8 -o '" + (dir_ / "x.exr").string() + "'";
+  RunResult r = run_cli("render cornell --tonemap reinhard" + args, dir_);
+  EXPECT_EQ(r.exit_code, 0) << r.err;
+  EXPECT_NE(r.err.find("warning: --tonemap reinhard applies to PNG images"), std::string::npos) << r.err;
+  EXPECT_TRUE(fs::exists(dir_ / "x.exr"));
+  r = run_cli("render cornell" + args, dir_);
+  EXPECT_EQ(r.exit_code, 0) << r.err;
+  EXPECT_EQ(r.err.find("--tonemap"), std::string::npos) << r.err;
+}
+
 TEST_F(Cli, BadOptionsAreUsageErrors) {
   EXPECT_EQ(run_cli("render cornell --accel octree", dir_).exit_code, 2);
   EXPECT_EQ(run_cli("render cornell --width 0", dir_).exit_code, 2);

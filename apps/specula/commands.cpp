@@ -191,6 +191,9 @@ int render(const RenderOptions& options) {
   const std::string ext = std::filesystem::path(options.output).extension().string();
   if (ext != ".png" && ext != ".exr" && ext != ".PNG" && ext != ".EXR")
     throw Error(options.output + ": output must end in .png or .exr");
+  if (options.tonemap != "clamp" && (ext == ".exr" || ext == ".EXR"))
+    std::fprintf(stderr, "warning: --tonemap %s applies to PNG images; %s is written linear (HDR), untouched\n",
+                 options.tonemap.c_str(), options.output.c_str());
   // Every output (image and AOVs) against every input (the scene file, then its sky image).
   std::vector<std::string> outputs{options.output};
   for (Aov a : parse_aovs(options.aovs)) outputs.push_back(aov_path(options.output, a));
