@@ -194,13 +194,15 @@ int render(const RenderOptions& options) {
   if (options.tonemap != "clamp" && (ext == ".exr" || ext == ".EXR"))
     std::fprintf(stderr, "warning: --tonemap %s applies to PNG images; %s is written linear (HDR), untouched\n",
                  options.tonemap.c_str(), options.output.c_str());
+  specula::RenderOptions ro = options.render;
+  ro.aovs = parse_aovs(options.aovs);
   // Every output (image and AOVs) against every input (the scene file, then its sky image).
   std::vector<std::string> outputs{options.output};
-  for (Aov a : parse_aovs(options.aovs)) outputs.push_back(aov_path(options.output, a));
+  for (Aov a : ro.aovs) outputs.push_back(aov_path(options.output, a));
   refuse_overwriting_inputs(outputs, {options.scene});
   // An absurd image size or an output that cannot be written fails now, not after the scene is
   // loaded, its tracer built and the frame rendered.
-  check_image_size(options.render.width, options.render.height, parse_aovs(options.aovs));
+  check_image_size(ro.width, ro.height, ro.aovs);
   for (const std::string& out : outputs) check_output_path(out);
 
   PreparedScene prepared =
@@ -208,8 +210,6 @@ int render(const RenderOptions& options) {
   const Scene& scene = prepared.scene;
   const auto& tracer = prepared.tracer;
   if (scene.sky.type == SkyType::Image) refuse_overwriting_inputs(outputs, {options.scene, scene.sky.image_path});
-  specula::RenderOptions ro = options.render;
-  ro.aovs = parse_aovs(options.aovs);
 
   ProgressLine progress("rendering");
   ro.progress = [&progress](double f) { progress.update(f); };

@@ -22,6 +22,13 @@ namespace {
 
 using json = nlohmann::ordered_json;  // keeps "materials" in file order
 
+/// Why \p p, a referenced file that is not a regular file, cannot be read: "not found" or "is
+/// not a regular file" (a folder, a device).
+std::string not_a_file(const fs::path& p) {
+  std::error_code ec;
+  return fs::exists(p, ec) ? "is not a regular file" : "not found";
+}
+
 class JsonSceneLoader {
  public:
   JsonSceneLoader(const fs::path& path, const LoadOptions& options)
@@ -238,7 +245,7 @@ class JsonSceneLoader {
         if (file.empty()) fail(where + ".file: " + why);
         std::error_code ec;
         if (!fs::is_regular_file(file, ec))
-          fail(where + ".file: '" + ref + (fs::exists(file, ec) ? "' is not a regular file" : "' not found") + " in " +
+          fail(where + ".file: '" + ref + "' " + not_a_file(file) + " in " +
                (dir_.empty() ? std::string(".") : dir_.string()));
       } else {
         const std::string ref = get_string(m["data"], where + ".data");
@@ -413,8 +420,7 @@ class JsonSceneLoader {
       const fs::path p = detail::confined_path(dir_, ref, why);
       if (p.empty()) fail(where + ".image: " + why);
       std::error_code ec;
-      if (!fs::is_regular_file(p, ec))
-        fail(where + ".image: '" + ref + (fs::exists(p, ec) ? "' is not a regular file" : "' not found"));
+      if (!fs::is_regular_file(p, ec)) fail(where + ".image: '" + ref + "' " + not_a_file(p));
       sky.image_path = p.string();
     } else if (s.contains("image")) {
       detail::warn(options_, file_ + ": " + where + ".image: ignored for a " + type + " sky");

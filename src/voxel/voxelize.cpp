@@ -1060,13 +1060,8 @@ VoxelSet voxelize(const VoxelizeInput& input, const VoxelizeOptions& options, Vo
   st.threads = chk.threads;
   st.triangles = chk.triangles;
   st.memory_limit = limit_of(options);
-  // \p pairs < 0: \p bytes is the lattice copy of the vertices alone (checked before the estimate).
-  auto refuse = [&](double bytes, double pairs, double voxels) {
-    char what[160];
-    if (pairs < 0)
-      std::snprintf(what, sizeof what, "for the lattice copy of the %zu vertices alone", input.positions.size());
-    else
-      std::snprintf(what, sizeof what, "upper bound for %.4g voxel-triangle pairs, %.4g voxels", pairs, voxels);
+  // \p what: what \p bytes is for.
+  auto refuse = [&](double bytes, const char* what) {
     char buf[512];
     std::snprintf(buf, sizeof buf,
                   "voxelize: depth %d would need up to %.4g bytes (%s; %s) which exceeds the memory limit of %" PRIu64
@@ -1076,7 +1071,11 @@ VoxelSet voxelize(const VoxelizeInput& input, const VoxelizeOptions& options, Vo
     throw Error(buf);
   };
   // The lattice copy of the positions comes first (the estimate needs it): check it alone.
-  if (lattice_bytes(input) > static_cast<double>(st.memory_limit)) refuse(lattice_bytes(input), -1, 0);
+  if (lattice_bytes(input) > static_cast<double>(st.memory_limit)) {
+    char what[96];
+    std::snprintf(what, sizeof what, "for the lattice copy of the %zu vertices alone", input.positions.size());
+    refuse(lattice_bytes(input), what);
+  }
 
   tbb::task_arena arena(chk.threads);
   VoxelSet result;
@@ -1085,7 +1084,12 @@ VoxelSet voxelize(const VoxelizeInput& input, const VoxelizeOptions& options, Vo
     const std::vector<LatticePoint> lat = snap_positions(input, chk.grid);
     const Estimate est = bound_memory(input, lat, chk, options, st.memory_limit);
     st.estimate_bytes = est.bytes >= 1.8e19 ? std::numeric_limits<uint64_t>::max() : static_cast<uint64_t>(est.bytes);
-    if (est.bytes > static_cast<double>(st.memory_limit)) refuse(est.bytes, est.pair_bound, est.voxel_bound);
+    if (est.bytes > static_cast<double>(st.memory_limit)) {
+      char what[128];
+      std::snprintf(what, sizeof what, "upper bound for %.4g voxel-triangle pairs, %.4g voxels", est.pair_bound,
+                    est.voxel_bound);
+      refuse(est.bytes, what);
+    }
     st.prepare_ms = total.ms();
 
     // 3-4. bin into bricks: a triangle inside one brick goes there without tests; larger ones
