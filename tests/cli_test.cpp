@@ -183,6 +183,28 @@ TEST_F(Cli, LodDeeperThanAnSvoFileIsAnError) {
   EXPECT_EQ(r.exit_code, 0) << r.err;
 }
 
+// A camera name the scene does not have fails once the scene is loaded, before its tracer is
+// built (a depth-10 octree or a large BVH) and before any other view is rendered.
+TEST_F(Cli, UnknownCameraFailsBeforeTheBuild) {
+  const fs::path mesh = write("quad.obj", kQuadObj);
+  const fs::path svo = dir_ / "quad.svo";
+  ASSERT_EQ(run_cli("voxelize '" + mesh.string() + "' --depth 3 -o '" + svo.string() + "'", dir_).exit_code, 0);
+  const std::string m = "'" + mesh.string() + "'";
+  const std::string img = " -o '" + (dir_ / "x.png").string() + "' --width 8 --height 8";
+  for (const std::string& args :
+       {"render " + m + " --camera nosuch" + img, "render " + m + " --camera nosuch --accel svo --depth 5" + img,
+        "render '" + svo.string() + "' --camera nosuch" + img, "bench render --scene " + m + " --cameras default,nosuch --sizes 8x8",
+        "bench svo --scene " + m + " --cameras nosuch --sizes 8x8 --depths 2"}) {
+    const RunResult r = run_cli(args, dir_);
+    EXPECT_EQ(r.exit_code, 1) << args;
+    EXPECT_NE(r.err.find("unknown camera 'nosuch' (available: "), std::string::npos) << args << "\n" << r.err;
+    EXPECT_EQ(r.out.find("build"), std::string::npos) << args << "\n" << r.out;
+    EXPECT_EQ(r.out.find("voxelize"), std::string::npos) << args << "\n" << r.out;
+    EXPECT_EQ(r.out.find("default "), std::string::npos) << args << " rendered a view first\n" << r.out;
+  }
+  EXPECT_FALSE(fs::exists(dir_ / "x.png"));
+}
+
 // Results printed to a standard output that cannot take them (a full disk: /dev/full) end in an
 // error, not in success with a truncated result.
 TEST_F(Cli, FailedWritesToStandardOutputAreErrors) {

@@ -145,9 +145,10 @@ int bench_svo(const BenchSvoOptions& options) {
   specula::RenderOptions ro = options.render;
   const int threads = ro.threads > 0 ? ro.threads : tbb::info::default_concurrency();
   SceneVoxelOptions none;
-  const PreparedScene prepared = prepare_scene(options.scene, options.load, "bvh", BvhOptions{}, none, ro.threads);
-  const Scene& scene = prepared.scene;
   std::vector<std::string> cameras = split_list(options.cameras);
+  const PreparedScene prepared = prepare_scene(options.scene, options.load, "bvh", BvhOptions{}, none, ro.threads,
+                                               cameras.empty() ? std::vector<std::string>{""} : cameras);
+  const Scene& scene = prepared.scene;
   if (cameras.empty())
     for (const Camera& c : scene.cameras) cameras.push_back(c.name);
 
@@ -286,12 +287,13 @@ int bench_render(const BenchRenderOptions& options) {
   const std::vector<Size> sizes = parse_sizes(options.sizes);
   specula::RenderOptions ro = options.render;
   const int threads = ro.threads > 0 ? ro.threads : tbb::info::default_concurrency();
+  // Every camera named is looked up before the build ("": the scene must have one).
+  std::vector<std::string> cameras = split_list(options.cameras);
   const PreparedScene prepared =
-      prepare_scene(options.scene, options.load, options.accel, options.bvh, options.voxel, ro.threads);
+      prepare_scene(options.scene, options.load, options.accel, options.bvh, options.voxel, ro.threads,
+                    cameras.empty() ? std::vector<std::string>{""} : cameras);
   const Scene& scene = prepared.scene;
   const auto& tracer = prepared.tracer;
-  if (scene.cameras.empty()) throw Error(options.scene + ": the scene has no camera");
-  std::vector<std::string> cameras = split_list(options.cameras);
   if (cameras.empty())
     for (const Camera& c : scene.cameras) cameras.push_back(c.name);
   const bool voxels = options.accel == "svo" || options.accel == "grid";

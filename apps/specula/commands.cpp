@@ -55,7 +55,8 @@ void check_input_size(const std::string& path, const InputLimits& limits) {
 }  // namespace
 
 PreparedScene prepare_scene(const std::string& spec, const LoadOptions& load, const std::string& accel,
-                            const BvhOptions& bvh_options, const SceneVoxelOptions& voxel_options, int threads) {
+                            const BvhOptions& bvh_options, const SceneVoxelOptions& voxel_options, int threads,
+                            const std::vector<std::string>& cameras) {
   PreparedScene out;
   if (ends_with_svo(spec)) {
     if (accel != "svo" && accel != "bvh")
@@ -70,6 +71,7 @@ PreparedScene prepare_scene(const std::string& spec, const LoadOptions& load, co
                   " (use 1.." + std::to_string(svo->grid().depth) + ", or 0 for full depth)");
     out.load_ms = timer.ms();
     out.scene = svo_scene(*svo, std::filesystem::path(spec).filename().string());
+    for (const std::string& c : cameras) select_camera(out.scene, c);
     out.bytes = svo->memory_bytes();
     std::printf("scene    %s: %s voxels at depth %d (%s hits)\n", spec.c_str(), with_thousands(svo->voxel_count()).c_str(),
                 svo->grid().depth, to_string(svo->hit_mode()));
@@ -97,6 +99,7 @@ PreparedScene prepare_scene(const std::string& spec, const LoadOptions& load, co
               scene.name.empty() ? spec.c_str() : scene.name.c_str(), with_thousands(scene.triangle_count()).c_str(),
               scene.materials.size(), scene.lights.size(), scene.cameras.size());
   std::printf("load     %9.2f ms\n", out.load_ms);
+  for (const std::string& c : cameras) select_camera(scene, c);
   if (accel == "svo" || accel == "grid") {
     SceneVoxelOptions v = voxel_options;
     v.kind = accel;
@@ -206,7 +209,8 @@ int render(const RenderOptions& options) {
   for (const std::string& out : outputs) check_output_path(out);
 
   PreparedScene prepared =
-      prepare_scene(options.scene, options.load, options.accel, options.bvh, options.voxel, options.render.threads);
+      prepare_scene(options.scene, options.load, options.accel, options.bvh, options.voxel, options.render.threads,
+                    {ro.camera});
   const Scene& scene = prepared.scene;
   const auto& tracer = prepared.tracer;
   if (scene.sky.type == SkyType::Image) refuse_overwriting_inputs(outputs, {options.scene, scene.sky.image_path});

@@ -141,9 +141,12 @@ struct PreparedScene {
   size_t bytes = 0;
 };
 /// Loads SCENE (a bare .svo file becomes a stand-in scene traced by its octree) and builds the
-/// structure \p accel names (bvh, brute, svo, grid), printing a load and a build line.
+/// structure \p accel names (bvh, brute, svo, grid), printing a load and a build line. The
+/// \p cameras to be rendered (select_camera's names; "" = the first one) are looked up between
+/// the two, so a mistyped name fails before the build.
 PreparedScene prepare_scene(const std::string& spec, const LoadOptions& load, const std::string& accel,
-                            const BvhOptions& bvh, const SceneVoxelOptions& voxel, int threads);
+                            const BvhOptions& bvh, const SceneVoxelOptions& voxel, int threads,
+                            const std::vector<std::string>& cameras);
 double median(std::vector<double> v);
 void print_build(const char* accel, const BuildInfo& b);
 Scene load_timed(const std::string& spec, const LoadOptions& load, double& ms);

@@ -85,8 +85,14 @@ std::vector<Vec3> shadow_transmittance(const Scene& scene);
 /// a scene, so an absurd size fails at once, not after the load and the build.
 void check_image_size(int width, int height, std::span<const Aov> aovs = {});
 
+/// The camera \p name names in \p scene (RenderOptions::camera): the scene's first camera when
+/// \p name is empty. Throws specula::Error when there is no such camera, listing the ones there
+/// are. Front ends call it once the scene is loaded, before they build its tracer.
+const Camera& select_camera(const Scene& scene, const std::string& name);
+
 /// Renders the scene with the iterative Whitted integrator. Bit-identical for any thread
-/// count. Throws specula::Error for an unknown camera or an absurd image size (check_image_size).
+/// count. Throws specula::Error for an unknown camera (select_camera) or an absurd image size
+/// (check_image_size).
 Film render_whitted(const Scene& scene, const Tracer& tracer, const RenderOptions& options,
                     RenderStats* stats = nullptr);
 

@@ -24,6 +24,20 @@ PinholeCamera::PinholeCamera(const Camera& cam, int width, int height) {
   dv_ = v * (-2.0f * half_h / static_cast<float>(std::max(height, 1)));
 }
 
+const Camera& select_camera(const Scene& scene, const std::string& name) {
+  if (name.empty()) {
+    if (scene.cameras.empty()) throw Error((scene.name.empty() ? "scene" : scene.name) + ": has no camera");
+    return scene.cameras.front();
+  }
+  const auto idx = scene.find_camera(name);
+  if (!idx) {
+    std::string names;
+    for (const Camera& c : scene.cameras) names += (names.empty() ? "" : ", ") + c.name;
+    throw Error("unknown camera '" + name + "' (available: " + (names.empty() ? std::string("none") : names) + ")");
+  }
+  return scene.cameras[*idx];
+}
+
 const char* aov_name(Aov aov) {
   switch (aov) {
     case Aov::Depth: return "depth";

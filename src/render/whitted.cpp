@@ -943,21 +943,7 @@ void render_whitted(const Scene& scene, const Tracer& tracer, const RenderOption
   check_image_size(w, h, options.aovs);
   const uint64_t pixels = static_cast<uint64_t>(w) * static_cast<uint64_t>(h);
 
-  // Camera.
-  Camera cam;
-  if (options.camera.empty()) {
-    if (scene.cameras.empty()) throw Error((scene.name.empty() ? "scene" : scene.name) + ": has no camera");
-    cam = scene.cameras.front();
-  } else {
-    const auto idx = scene.find_camera(options.camera);
-    if (!idx) {
-      std::string names;
-      for (const Camera& c : scene.cameras) names += (names.empty() ? "" : ", ") + c.name;
-      throw Error("unknown camera '" + options.camera + "' (available: " +
-                  (names.empty() ? std::string("none") : names) + ")");
-    }
-    cam = scene.cameras[*idx];
-  }
+  const Camera cam = select_camera(scene, options.camera);
   if (scene.indices.size() % 3 != 0) throw Error("render: scene index count is not a multiple of 3");
   // (A branch-free maximum, which the compiler vectorises: this runs for every frame.)
   uint32_t max_index = 0;
