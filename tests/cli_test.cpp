@@ -418,6 +418,50 @@ TEST_F(Cli, BenchRenderPrintsFrameRatesAndSeedFigures) {
   EXPECT_NE(cam.err.find("nope"), std::string::npos) << cam.err;
 }
 
+// --json: stdout carries one JSON object and nothing else (the load lines go to stderr).
+TEST_F(Cli, BenchRenderAndBenchSvoPrintJson) {
+  const RunResult r = run_cli("bench render --cameras water --sizes 640x480,16x12 --frames 1 --no-shadows --json", dir_);
+  ASSERT_EQ(r.exit_code, 0) << r.err;
+  nlohmann::json j;
+  ASSERT_NO_THROW(j = nlohmann::json::parse(r.out)) << r.out;
+  EXPECT_NE(r.err.find("load"), std::string::npos) << r.err;
+  EXPECT_EQ(j["scene"], "pool");
+  EXPECT_EQ(j["accel"], "bvh");
+  EXPECT_FALSE(j["shadows"].get<bool>());
+  EXPECT_GT(j["build_ms"].get<double>(), 0.0);
+  ASSERT_EQ(j["results"].size(), 2u) << r.out;
+  const nlohmann::json& big = j["results"][0];
+  EXPECT_EQ(big["camera"], "water");
+  EXPECT_EQ(big["width"], 640);
+  EXPECT_GT(big["fps"].get<double>(), 0.0);
+  EXPECT_EQ(big["primary_rays"], 640 * 480);
+  EXPECT_EQ(big["shadow_rays"], 0);
+  ASSERT_EQ(big["seed000_gpu_fps"].size(), 8u) << big.dump();
+  EXPECT_TRUE(big["seed000_gpu_fps"][0].is_null());      // no water figure at depth 1
+  EXPECT_EQ(big["seed000_gpu_fps"][2].get<double>(), 25.0);  // depth 3
+  EXPECT_NEAR(big["ratio_seed000_d3"].get<double>(), big["fps"].get<double>() / 25.0, 1e-9);
+  EXPECT_FALSE(j["results"][1].contains("seed000_gpu_fps"));  // no seed figure at 16x12
+
+  const RunResult s = run_cli("bench svo --cameras water --sizes 640x480 --depths 3,4 --frames 1 --json", dir_);
+  ASSERT_EQ(s.exit_code, 0) << s.err;
+  ASSERT_NO_THROW(j = nlohmann::json::parse(s.out)) << s.out;
+  ASSERT_EQ(j["depths"].size(), 2u);
+  EXPECT_EQ(j["depths"][1]["depth"], 4);
+  EXPECT_GT(j["depths"][1]["voxels"].get<int>(), j["depths"][0]["voxels"].get<int>());
+  ASSERT_EQ(j["cells"].size(), 8u);  // 2 depths x 2 setups x 2 hit modes
+  int with_seed = 0;
+  for (const auto& c : j["cells"]) {
+    EXPECT_GT(c["fps"].get<double>(), 0.0) << c.dump();
+    EXPECT_GE(c["rays_per_pixel"].get<double>(), 1.0) << c.dump();
+    if (c.contains("seed000_gpu_fps")) {
+      ++with_seed;
+      EXPECT_EQ(c["setup"], "seed000") << c.dump();
+      EXPECT_EQ(c["seed000_gpu_fps"].get<double>(), c["depth"] == 3 ? 25.0 : 17.0) << c.dump();
+    }
+  }
+  EXPECT_EQ(with_seed, 4);  // the seed's setup, both hit modes, both depths
+}
+
 TEST_F(Cli, RenderTracesVoxelsWithEveryVoxelStructure) {
   const fs::path obj = write("quad.obj", kQuadObj);
   for (const char* accel : {"svo", "grid"}) {

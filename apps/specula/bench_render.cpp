@@ -11,6 +11,7 @@
 #include <string>
 #include <vector>
 
+#include <nlohmann/json.hpp>
 #include <tbb/info.h>
 
 #include "commands.h"
@@ -87,6 +88,18 @@ std::string seed_cells(const SeedRow& r) {
   return s;
 }
 
+/// Seed 000's frame rates of \p row for depths 1..8 as JSON: null where the seed gives none.
+nlohmann::ordered_json seed_json(const SeedRow& row) {
+  nlohmann::ordered_json a = nlohmann::ordered_json::array();
+  for (const float f : row.fps) a.push_back(f < 0 ? nlohmann::ordered_json() : nlohmann::ordered_json(static_cast<double>(f)));
+  return a;
+}
+
+/// A measured figure as JSON: null when it is not finite (a PSNR of identical images).
+nlohmann::ordered_json number_or_null(double v) {
+  return std::isfinite(v) ? nlohmann::ordered_json(v) : nlohmann::ordered_json();
+}
+
 /// Process CPU time (all threads) in ms.
 double process_cpu_ms() {
   timespec ts{};
@@ -146,8 +159,10 @@ int bench_svo(const BenchSvoOptions& options) {
   const int threads = ro.threads > 0 ? ro.threads : tbb::info::default_concurrency();
   SceneVoxelOptions none;
   std::vector<std::string> cameras = split_list(options.cameras);
+  const bool json = options.json;
+  std::FILE* const log = json ? stderr : stdout;  // with --json, stdout carries the JSON only
   const PreparedScene prepared = prepare_scene(options.scene, options.load, "bvh", BvhOptions{}, none, ro.threads,
-                                               cameras.empty() ? std::vector<std::string>{""} : cameras);
+                                               cameras.empty() ? std::vector<std::string>{""} : cameras, log);
   const Scene& scene = prepared.scene;
   if (cameras.empty())
     for (const Camera& c : scene.cameras) cameras.push_back(c.name);
@@ -189,12 +204,13 @@ int bench_svo(const BenchSvoOptions& options) {
     double cpu_ms[2][2] = {};  ///< CPU time of a frame, all threads
   };
   std::vector<std::vector<Cell>> cells(views.size(), std::vector<Cell>(depths.size()));
-  std::printf("\nbench svo: %s, %d thread%s, max reflect %d / refract %d, median of %d frame%s per cell\n",
-              options.scene.c_str(), threads, threads == 1 ? "" : "s", ro.max_reflect, ro.max_refract, options.frames,
-              options.frames == 1 ? "" : "s");
-  std::printf("  seed 000's setup: Whitted without shadow rays (every light shades every hit unoccluded;\n"
-              "    reflections and refractions traced), as the seed's section 1.7.2 describes its renderer\n"
-              "  full Whitted: the same plus a shadow ray to every light (sample) at every hit\n");
+  std::fprintf(log, "\nbench svo: %s, %d thread%s, max reflect %d / refract %d, median of %d frame%s per cell\n",
+               options.scene.c_str(), threads, threads == 1 ? "" : "s", ro.max_reflect, ro.max_refract,
+               options.frames, options.frames == 1 ? "" : "s");
+  std::fprintf(log, "  seed 000's setup: Whitted without shadow rays (every light shades every hit unoccluded;\n"
+                    "    reflections and refractions traced), as the seed's section 1.7.2 describes its renderer\n"
+                    "  full Whitted: the same plus a shadow ray to every light (sample) at every hit\n");
+  nlohmann::ordered_json depth_rows = nlohmann::ordered_json::array();
   for (size_t di = 0; di < depths.size(); ++di) {
     SceneVoxelOptions vo;
     vo.kind = "svo";
@@ -203,11 +219,16 @@ int bench_svo(const BenchSvoOptions& options) {
     vo.memory_limit = options.memory_limit;
     SceneVoxelInfo info;
     const auto svo = voxelize_scene(scene, vo, &info);
-    std::printf("depth %d: %s voxels, voxelize %.1f ms, octree %.1f ms, %.2f MiB (%.1f bytes/voxel)\n", depths[di],
-                with_thousands(info.voxels).c_str(), info.voxelize_ms, info.build_ms,
-                static_cast<double>(info.bytes) / 1048576.0,
-                info.voxels ? static_cast<double>(info.bytes) / static_cast<double>(info.voxels) : 0.0);
-    std::fflush(stdout);
+    std::fprintf(log, "depth %d: %s voxels, voxelize %.1f ms, octree %.1f ms, %.2f MiB (%.1f bytes/voxel)\n",
+                 depths[di], with_thousands(info.voxels).c_str(), info.voxelize_ms, info.build_ms,
+                 static_cast<double>(info.bytes) / 1048576.0,
+                 info.voxels ? static_cast<double>(info.bytes) / static_cast<double>(info.voxels) : 0.0);
+    std::fflush(log);
+    depth_rows.push_back({{"depth", depths[di]},
+                          {"voxels", info.voxels},
+                          {"voxelize_ms", info.voxelize_ms},
+                          {"octree_ms", info.build_ms},
+                          {"bytes", info.bytes}});
     for (size_t vi = 0; vi < views.size(); ++vi) {
       for (const Setup setup : {kSeed, kFull}) {
         specula::RenderOptions o = setup_options(setup);
@@ -227,6 +248,47 @@ int bench_svo(const BenchSvoOptions& options) {
         }
       }
     }
+  }
+
+  if (json) {
+    nlohmann::ordered_json out = nlohmann::ordered_json::array();
+    for (size_t vi = 0; vi < views.size(); ++vi) {
+      const auto row = seed_row(options.scene, views[vi].camera, views[vi].size);
+      for (size_t di = 0; di < depths.size(); ++di)
+        for (const Setup setup : {kSeed, kFull})
+          for (const int m : {0, 1}) {
+            const Cell& c = cells[vi][di];
+            nlohmann::ordered_json r;
+            r["camera"] = views[vi].camera;
+            r["width"] = views[vi].size.width;
+            r["height"] = views[vi].size.height;
+            r["depth"] = depths[di];
+            r["setup"] = setup == kSeed ? "seed000" : "full_whitted";
+            r["hits"] = m == 0 ? "cubes" : "contours";
+            r["fps"] = c.fps[setup][m];
+            r["cpu_ms_per_frame"] = c.cpu_ms[setup][m];
+            r["rays_per_pixel"] = c.rays_per_pixel[setup][m];
+            r["psnr_db_vs_bvh"] = number_or_null(c.psnr[setup][m]);
+            const float seed = row && depths[di] <= 8 ? row->fps[depths[di] - 1] : -1.0f;
+            if (setup == kSeed && seed > 0) {
+              r["seed000_gpu_fps"] = static_cast<double>(seed);
+              r["ratio_seed000"] = c.fps[setup][m] / static_cast<double>(seed);
+            }
+            out.push_back(std::move(r));
+          }
+    }
+    nlohmann::ordered_json j;
+    j["scene"] = options.scene;
+    j["threads"] = threads;
+    j["frames"] = options.frames;
+    j["max_reflect"] = ro.max_reflect;
+    j["max_refract"] = ro.max_refract;
+    j["setups"] = {{"seed000", "Whitted without shadow rays (seed 000's section 1.7.2)"},
+                   {"full_whitted", "the same plus a shadow ray to every light sample at every hit"}};
+    j["depths"] = std::move(depth_rows);
+    j["cells"] = std::move(out);
+    std::printf("%s\n", j.dump(2).c_str());
+    return 0;
   }
 
   const auto print_table = [&](const char* title, auto value, const char* fmt, bool with_seed) {
@@ -289,26 +351,28 @@ int bench_render(const BenchRenderOptions& options) {
   const int threads = ro.threads > 0 ? ro.threads : tbb::info::default_concurrency();
   // Every camera named is looked up before the build ("": the scene must have one).
   std::vector<std::string> cameras = split_list(options.cameras);
+  const bool json = options.json;
   const PreparedScene prepared =
       prepare_scene(options.scene, options.load, options.accel, options.bvh, options.voxel, ro.threads,
-                    cameras.empty() ? std::vector<std::string>{""} : cameras);
+                    cameras.empty() ? std::vector<std::string>{""} : cameras, json ? stderr : stdout);
   const Scene& scene = prepared.scene;
   const auto& tracer = prepared.tracer;
   if (cameras.empty())
     for (const Camera& c : scene.cameras) cameras.push_back(c.name);
   const bool voxels = options.accel == "svo" || options.accel == "grid";
-  std::printf("\nbench render: %s, %s, %d thread%s, max reflect %d / refract %d, median of %d frame%s\n\n",
-              options.scene.c_str(),
-              voxels ? (options.accel + " depth " + std::to_string(options.voxel.depth) + " " +
-                        to_string(options.voxel.tracer.mode))
-                           .c_str()
-                     : options.accel.c_str(),
-              threads, threads == 1 ? "" : "s", ro.max_reflect, ro.max_refract, options.frames,
-              options.frames == 1 ? "" : "s");
+  const std::string accel = voxels ? options.accel + " depth " + std::to_string(options.voxel.depth) + " " +
+                                         to_string(options.voxel.tracer.mode)
+                                   : options.accel;
   const bool pool = options.scene == "pool";
-  std::printf("%-10s %-10s %10s %8s %11s %9s", "camera", "size", "ms/frame", "fps", "Mrays/frm", "Mrays/s");
-  if (pool) std::printf(" | seed 000 GPU fps, octree depth 1..8               | ours/seed d3  d8");
-  std::printf("\n");
+  if (!json) {
+    std::printf("\nbench render: %s, %s, %d thread%s, max reflect %d / refract %d, median of %d frame%s\n\n",
+                options.scene.c_str(), accel.c_str(), threads, threads == 1 ? "" : "s", ro.max_reflect,
+                ro.max_refract, options.frames, options.frames == 1 ? "" : "s");
+    std::printf("%-10s %-10s %10s %8s %11s %9s", "camera", "size", "ms/frame", "fps", "Mrays/frm", "Mrays/s");
+    if (pool) std::printf(" | seed 000 GPU fps, octree depth 1..8               | ours/seed d3  d8");
+    std::printf("\n");
+  }
+  nlohmann::ordered_json results = nlohmann::ordered_json::array();
 
   for (const std::string& camera : cameras) {
     for (const Size& size : sizes) {
@@ -320,16 +384,54 @@ int bench_render(const BenchRenderOptions& options) {
       const double t = timed_render(scene, *tracer, ro, options.frames, film, stats);
       const double fps = 1000.0 / std::max(t, 1e-9);
       const double rays = static_cast<double>(stats.total_rays());
+      const auto row = seed_row(options.scene, camera, size);
+      if (json) {
+        nlohmann::ordered_json r;
+        r["camera"] = camera;
+        r["width"] = size.width;
+        r["height"] = size.height;
+        r["ms_per_frame"] = t;
+        r["fps"] = fps;
+        r["primary_rays"] = stats.primary_rays;
+        r["secondary_rays"] = stats.secondary_rays;
+        r["shadow_rays"] = stats.shadow_rays;
+        r["mrays_per_s"] = rays / (t * 1e3);
+        if (row) {
+          r["seed000_gpu_fps"] = seed_json(*row);
+          r["ratio_seed000_d3"] = fps / static_cast<double>(row->fps[2]);
+          r["ratio_seed000_d8"] = fps / static_cast<double>(row->fps[7]);
+        }
+        results.push_back(std::move(r));
+        continue;
+      }
       const std::string size_str = std::to_string(size.width) + "x" + std::to_string(size.height);
       std::printf("%-10s %-10s %10.1f %8.2f %11.2f %9.2f", camera.c_str(), size_str.c_str(), t, fps, rays / 1e6,
                   rays / (t * 1e3));
-      if (const auto row = seed_row(options.scene, camera, size)) {
+      if (row) {
         std::printf(" | %s | %8.2fx %6.2fx", seed_cells(*row).c_str(), fps / static_cast<double>(row->fps[2]),
                     fps / static_cast<double>(row->fps[7]));
       }
       std::printf("\n");
       std::fflush(stdout);
     }
+  }
+  if (json) {
+    nlohmann::ordered_json j;
+    j["scene"] = options.scene;
+    j["accel"] = accel;
+    j["threads"] = threads;
+    j["frames"] = options.frames;
+    j["shadows"] = ro.shadows;
+    j["max_reflect"] = ro.max_reflect;
+    j["max_refract"] = ro.max_refract;
+    j["load_ms"] = prepared.load_ms;
+    j["build_ms"] = prepared.build_ms;
+    j["structure_bytes"] = prepared.bytes;
+    if (pool)
+      j["seed000"] = "AMD Radeon HD 6900, sparse voxel octree; seed000_gpu_fps lists its fps at depths 1-8 (null: none)";
+    j["results"] = std::move(results);
+    std::printf("%s\n", j.dump(2).c_str());
+    return 0;
   }
   if (pool)
     std::printf("\n(seed 000: AMD Radeon HD 6900, its sparse voxel octree at depths 1-8; ours traces the full-"

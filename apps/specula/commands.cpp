@@ -30,12 +30,12 @@ double median(std::vector<double> v) {
   return n == 0 ? 0.0 : (n % 2 ? v[n / 2] : 0.5 * (v[n / 2 - 1] + v[n / 2]));
 }
 
-void print_build(const char* accel, const BuildInfo& b) {
-  std::printf("build    %9.2f ms  (%s: %s nodes, %s leaves, depth %u, SAH cost %.2f, %.2f MiB)\n",
+void print_build(const char* accel, const BuildInfo& b, std::FILE* log) {
+  std::fprintf(log, "build    %9.2f ms  (%s: %s nodes, %s leaves, depth %u, SAH cost %.2f, %.2f MiB)\n",
               b.build_ms, accel, with_thousands(b.nodes).c_str(), with_thousands(b.leaves).c_str(),
               b.max_depth, b.sah_cost, static_cast<double>(b.bytes) / (1024.0 * 1024.0));
   if (b.optimize_ms > 0.0)
-    std::printf("         --bvh-quality high: SAH cost %.2f -> %.2f by %s reinsertions in %.2f ms of the build\n",
+    std::fprintf(log, "         --bvh-quality high: SAH cost %.2f -> %.2f by %s reinsertions in %.2f ms of the build\n",
                 b.sah_cost_binned, b.sah_cost, with_thousands(b.reinsertions).c_str(), b.optimize_ms);
 }
 
@@ -56,7 +56,7 @@ void check_input_size(const std::string& path, const InputLimits& limits) {
 
 PreparedScene prepare_scene(const std::string& spec, const LoadOptions& load, const std::string& accel,
                             const BvhOptions& bvh_options, const SceneVoxelOptions& voxel_options, int threads,
-                            const std::vector<std::string>& cameras) {
+                            const std::vector<std::string>& cameras, std::FILE* log) {
   PreparedScene out;
   if (ends_with_svo(spec)) {
     if (accel != "svo" && accel != "bvh")
@@ -73,9 +73,9 @@ PreparedScene prepare_scene(const std::string& spec, const LoadOptions& load, co
     out.scene = svo_scene(*svo, std::filesystem::path(spec).filename().string());
     for (const std::string& c : cameras) select_camera(out.scene, c);
     out.bytes = svo->memory_bytes();
-    std::printf("scene    %s: %s voxels at depth %d (%s hits)\n", spec.c_str(), with_thousands(svo->voxel_count()).c_str(),
+    std::fprintf(log, "scene    %s: %s voxels at depth %d (%s hits)\n", spec.c_str(), with_thousands(svo->voxel_count()).c_str(),
                 svo->grid().depth, to_string(svo->hit_mode()));
-    std::printf("load     %9.2f ms  (%.2f MiB)\n", out.load_ms, static_cast<double>(out.bytes) / (1024.0 * 1024.0));
+    std::fprintf(log, "load     %9.2f ms  (%.2f MiB)\n", out.load_ms, static_cast<double>(out.bytes) / (1024.0 * 1024.0));
     out.tracer = std::move(svo);
     return out;
   }
@@ -95,10 +95,10 @@ PreparedScene prepare_scene(const std::string& spec, const LoadOptions& load, co
                 " (--max-grid-memory raises it; --accel svo stores only the occupied voxels)");
   out.scene = load_timed(spec, load, out.load_ms);
   const Scene& scene = out.scene;
-  std::printf("scene    %s: %s triangles, %zu materials, %zu lights, %zu cameras\n",
+  std::fprintf(log, "scene    %s: %s triangles, %zu materials, %zu lights, %zu cameras\n",
               scene.name.empty() ? spec.c_str() : scene.name.c_str(), with_thousands(scene.triangle_count()).c_str(),
               scene.materials.size(), scene.lights.size(), scene.cameras.size());
-  std::printf("load     %9.2f ms\n", out.load_ms);
+  std::fprintf(log, "load     %9.2f ms\n", out.load_ms);
   for (const std::string& c : cameras) select_camera(scene, c);
   if (accel == "svo" || accel == "grid") {
     SceneVoxelOptions v = voxel_options;
@@ -108,8 +108,8 @@ PreparedScene prepare_scene(const std::string& spec, const LoadOptions& load, co
     out.tracer = voxelize_scene(scene, v, &info);
     out.build_ms = info.voxelize_ms + info.build_ms;
     out.bytes = info.bytes;
-    std::printf("voxelize %9.2f ms  (depth %d, %s voxels)\n", info.voxelize_ms, v.depth, with_thousands(info.voxels).c_str());
-    std::printf("build    %9.2f ms  (%s, %s hits, %.2f MiB, %.1f bytes/voxel)\n", info.build_ms, accel.c_str(),
+    std::fprintf(log, "voxelize %9.2f ms  (depth %d, %s voxels)\n", info.voxelize_ms, v.depth, with_thousands(info.voxels).c_str());
+    std::fprintf(log, "build    %9.2f ms  (%s, %s hits, %.2f MiB, %.1f bytes/voxel)\n", info.build_ms, accel.c_str(),
                 to_string(v.tracer.mode), static_cast<double>(info.bytes) / (1024.0 * 1024.0),
                 info.voxels ? static_cast<double>(info.bytes) / static_cast<double>(info.voxels) : 0.0);
     return out;
@@ -123,7 +123,7 @@ PreparedScene prepare_scene(const std::string& spec, const LoadOptions& load, co
   out.bytes = build.bytes;
   // Name the BVH's traversal kernel (what --bvh-kernel auto chose on this CPU).
   const std::string label = accel == "bvh" ? accel + " " + bvh_kernel_name(resolve_bvh_kernel(bvh.kernel)) : accel;
-  print_build(label.c_str(), build);
+  print_build(label.c_str(), build, log);
   return out;
 }
 

@@ -2,6 +2,7 @@
 // returns the process exit code and throws specula::Error for user errors.
 #pragma once
 
+#include <cstdio>
 #include <memory>
 #include <string>
 #include <vector>
@@ -107,6 +108,7 @@ struct BenchRenderOptions {
   BvhOptions bvh;
   SceneVoxelOptions voxel;
   LoadOptions load;
+  bool json = false;  ///< --json: one JSON object on stdout instead of the table (the load lines go to stderr)
 };
 
 /// `specula bench render`: Whitted frame time, fps and Mrays/s per camera and image size; for
@@ -123,6 +125,7 @@ struct BenchSvoOptions {
   specula::RenderOptions render;
   LoadOptions load;
   uint64_t memory_limit = 0;  ///< the voxelizer's (SceneVoxelOptions::memory_limit)
+  bool json = false;          ///< --json: one JSON object on stdout instead of the tables
 };
 
 /// `specula bench svo`: seed 000's frame-rate table (octree depths x views) with ours beside the
@@ -143,12 +146,13 @@ struct PreparedScene {
 /// Loads SCENE (a bare .svo file becomes a stand-in scene traced by its octree) and builds the
 /// structure \p accel names (bvh, brute, svo, grid), printing a load and a build line. The
 /// \p cameras to be rendered (select_camera's names; "" = the first one) are looked up between
-/// the two, so a mistyped name fails before the build.
+/// the two, so a mistyped name fails before the build. The lines go to \p log (stderr when the
+/// standard output carries JSON).
 PreparedScene prepare_scene(const std::string& spec, const LoadOptions& load, const std::string& accel,
                             const BvhOptions& bvh, const SceneVoxelOptions& voxel, int threads,
-                            const std::vector<std::string>& cameras);
+                            const std::vector<std::string>& cameras, std::FILE* log = stdout);
 double median(std::vector<double> v);
-void print_build(const char* accel, const BuildInfo& b);
+void print_build(const char* accel, const BuildInfo& b, std::FILE* log = stdout);
 Scene load_timed(const std::string& spec, const LoadOptions& load, double& ms);
 /// Throws for an .svo file given to \p command, which needs triangles, naming the commands
 /// that read octree files (render, info).

@@ -288,6 +288,10 @@ static int run(int argc, char** argv) {
       ->check(CLI::Range(1, 1000))
       ->capture_default_str();
   add_integrator_options(bench_render_cmd, bench_render.accel, bench_render.render, bench_render.voxel);
+  bench_render_cmd->add_flag("--json", bench_render.json,
+                             "print the results as one JSON object (settings, load and build ms, per camera and "
+                             "size: ms per frame, fps, rays by kind, Mrays/s, seed 000's fps) instead of the table; "
+                             "the load lines go to stderr");
   add_data_option(bench_render_cmd, bench_render.load);
   add_bvh_options(bench_render_cmd, bench_render.bvh);
 
@@ -308,6 +312,10 @@ static int run(int argc, char** argv) {
       ->check(CLI::Range(0, 1024))
       ->capture_default_str();
   add_memory_limit_option(bench_svo_cmd, bench_svo.memory_limit, "each depth: ");
+  bench_svo_cmd->add_flag("--json", bench_svo.json,
+                          "print the results as one JSON object (per depth: voxels, voxelize and octree ms, bytes; "
+                          "per view, depth, setup and hit mode: fps, CPU ms, rays per pixel, PSNR, seed 000's fps) "
+                          "instead of the tables; the progress lines go to stderr");
   add_data_option(bench_svo_cmd, bench_svo.load);
 
   // voxelize
