@@ -77,6 +77,11 @@ std::optional<SeedRow> seed_row(const std::string& scene, const std::string& cam
   return std::nullopt;
 }
 
+/// The seed's fps at octree depth \p depth in \p row; negative when it gives none.
+float seed_fps_at(const std::optional<SeedRow>& row, int depth) {
+  return row && depth >= 1 && depth <= 8 ? row->fps[depth - 1] : -1.0f;
+}
+
 std::string seed_cells(const SeedRow& r) {
   std::string s;
   char buf[16];
@@ -269,7 +274,7 @@ int bench_svo(const BenchSvoOptions& options) {
             r["cpu_ms_per_frame"] = c.cpu_ms[setup][m];
             r["rays_per_pixel"] = c.rays_per_pixel[setup][m];
             r["psnr_db_vs_bvh"] = number_or_null(c.psnr[setup][m]);
-            const float seed = row && depths[di] <= 8 ? row->fps[depths[di] - 1] : -1.0f;
+            const float seed = seed_fps_at(row, depths[di]);
             if (setup == kSeed && seed > 0) {
               r["seed000_gpu_fps"] = static_cast<double>(seed);
               r["ratio_seed000"] = c.fps[setup][m] / static_cast<double>(seed);
@@ -304,7 +309,7 @@ int bench_svo(const BenchSvoOptions& options) {
         char buf[48];
         std::snprintf(buf, sizeof buf, fmt, value(cells[vi][di]));
         if (with_seed) {
-          const float seed = row && depths[di] <= 8 ? row->fps[depths[di] - 1] : -1.0f;
+          const float seed = seed_fps_at(row, depths[di]);
           char sb[16];
           if (seed > 0) std::snprintf(sb, sizeof sb, "%.3g", static_cast<double>(seed));
           else std::snprintf(sb, sizeof sb, "-");
