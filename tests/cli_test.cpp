@@ -63,6 +63,16 @@ TEST_F(Cli, HelpOnEverySubcommand) {
     EXPECT_EQ(r.exit_code, 0) << sub;
     EXPECT_NE(r.out.find("Usage"), std::string::npos) << sub << r.out;
   }
+  // No command at all: the list of commands (a usage error all the same), not just "a
+  // subcommand is required".
+  const RunResult bare = run_cli("", dir_);
+  EXPECT_EQ(bare.exit_code, 2);
+  for (const char* sub : {"render", "trace", "info", "bench", "voxelize"})
+    EXPECT_NE(bare.err.find(std::string("\n  ") + sub + " "), std::string::npos) << sub << "\n" << bare.err;
+  const RunResult bench = run_cli("bench", dir_);
+  EXPECT_EQ(bench.exit_code, 2);
+  for (const char* sub : {"trace", "render", "svo"})
+    EXPECT_NE(bench.err.find(std::string("\n  ") + sub + " "), std::string::npos) << sub << "\n" << bench.err;
 }
 
 TEST_F(Cli, TracePrintsDistanceAndFileOrderPrimitive) {

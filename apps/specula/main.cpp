@@ -182,8 +182,9 @@ void add_integrator_options(CLI::App* app, std::string& accel, specula::RenderOp
 static int run(int argc, char** argv) {
   CLI::App app{
       "specula: real-time CPU ray tracing of reflections and refractions.\n"
-      "Renders scenes with a Whitted ray tracer over a binned-SAH BVH, traces ray files, and\n"
-      "benchmarks tracing (against Embree when it is installed). Run 'specula COMMAND --help'."};
+      "Renders scenes with a Whitted ray tracer over a binned-SAH BVH, a sparse voxel octree or a\n"
+      "voxel grid; voxelizes meshes; traces ray files; benchmarks tracing (against Embree when it\n"
+      "is installed) and frame rates. Run 'specula COMMAND --help'."};
   app.require_subcommand(1);
   app.set_version_flag("--version", "specula 0.1.0");
 
@@ -246,7 +247,7 @@ static int run(int argc, char** argv) {
   add_data_option(info_cmd, info.load);
 
   // bench
-  CLI::App* bench_cmd = app.add_subcommand("bench", "Benchmarks: 'specula bench trace' (ray tracing throughput, vs Embree) and 'specula bench render' (frame rates)");
+  CLI::App* bench_cmd = app.add_subcommand("bench", "Benchmarks: 'specula bench trace' (ray tracing throughput, vs Embree), 'specula bench render' (frame rates) and 'specula bench svo' (seed 000's octree frame-rate table)");
   bench_cmd->require_subcommand(1);
   cli::BenchTraceOptions bench;
   CLI::App* bench_trace_cmd = bench_cmd->add_subcommand(
@@ -326,6 +327,17 @@ static int run(int argc, char** argv) {
   try {
     app.parse(argc, argv);
   } catch (const CLI::ParseError& e) {
+    // No command at all ('specula', 'specula bench'): the help that lists the commands rather
+    // than only "A subcommand is required"; still a usage error.
+    if (dynamic_cast<const CLI::RequiredError*>(&e) != nullptr) {
+      const CLI::App* bare = app.get_subcommands().empty()                                      ? &app
+                             : bench_cmd->parsed() && bench_cmd->get_subcommands().empty() ? bench_cmd
+                                                                                            : nullptr;
+      if (bare != nullptr) {
+        std::fputs(bare->help(bare == &app ? "" : app.get_name()).c_str(), stderr);
+        return 2;
+      }
+    }
     // --help and --version exit 0; every usage error exits 2 (CLI11's own codes are 100+).
     return app.exit(e) == 0 ? 0 : 2;
   }
