@@ -494,6 +494,36 @@ TEST_F(Cli, RenderTracesVoxelsWithEveryVoxelStructure) {
   EXPECT_NE(run_cli("render '" + obj.string() + "' --accel bvh --voxel-mode contours", dir_).exit_code, 0);
 }
 
+// An option of one acceleration structure given with another (or with an .svo file) would
+// change nothing: it is refused, before the scene is loaded, rather than ignored.
+TEST_F(Cli, OptionsOfAnotherStructureAreRefused) {
+  const fs::path obj = write("quad.obj", kQuadObj);
+  const fs::path svo = dir_ / "quad.svo";
+  ASSERT_EQ(run_cli("voxelize '" + obj.string() + "' --depth 3 -o '" + svo.string() + "'", dir_).exit_code, 0);
+  const std::string m = " '" + obj.string() + "'", f = " '" + svo.string() + "'";
+  const std::string img = " --width 8 --height 8 -o '" + (dir_ / "x.png").string() + "'";
+  for (const auto& [args, message] : std::vector<std::pair<std::string, std::string>>{
+           {"render" + m + " --accel svo --bvh-kernel sse4", "--bvh-kernel applies to --accel bvh, not 'svo'"},
+           {"render" + m + " --accel grid --max-leaf 4", "--max-leaf applies to --accel bvh, not 'grid'"},
+           {"render" + m + " --accel brute --bvh-quality high", "--bvh-quality applies to --accel bvh, not 'brute'"},
+           {"render" + m + " --depth 5", "--depth applies to --accel svo|grid, not 'bvh'"},
+           {"render" + m + " --memory-limit 1G", "--memory-limit applies to --accel svo|grid, not 'bvh'"},
+           {"render" + m + " --accel svo --max-grid-memory 1G", "--max-grid-memory applies to --accel grid, not 'svo'"},
+           {"render" + f + " --depth 5", "is voxelized already"},
+           {"render" + f + " --bins 8", "is traced by its octree"},
+           {"bench render --sizes 8x8 --scene" + m + " --accel svo --bins 8", "--bins applies to --accel bvh, not 'svo'"}}) {
+    const RunResult r = run_cli(args + (args.rfind("bench", 0) == 0 ? "" : img), dir_);
+    EXPECT_EQ(r.exit_code, 1) << args;
+    EXPECT_NE(r.err.find(message), std::string::npos) << args << "\n" << r.err;
+    EXPECT_EQ(r.out.find("load"), std::string::npos) << args << "\n" << r.out;
+  }
+  EXPECT_FALSE(fs::exists(dir_ / "x.png"));
+  // Each with its own structure is taken.
+  EXPECT_EQ(run_cli("render" + m + " --bvh-kernel sse4 --bvh-quality high --max-leaf 4" + img, dir_).exit_code, 0);
+  EXPECT_EQ(run_cli("render" + m + " --accel grid --depth 4 --max-grid-memory 1G --memory-limit 1G" + img, dir_).exit_code, 0);
+  EXPECT_EQ(run_cli("render" + f + " --voxel-mode contours --lod 2" + img, dir_).exit_code, 0);
+}
+
 TEST_F(Cli, VoxelizeToSvoThenRenderTheFile) {
   const fs::path obj = write("quad.obj", kQuadObj);
   const fs::path svo = dir_ / "quad.svo", png = dir_ / "quad.png";

@@ -39,11 +39,12 @@ void print_build(const char* accel, const BuildInfo& b, std::FILE* log) {
                 b.sah_cost_binned, b.sah_cost, with_thousands(b.reinsertions).c_str(), b.optimize_ms);
 }
 
-namespace {
-bool ends_with_svo(const std::string& spec) {
+bool is_svo_file(const std::string& spec) {
   const std::string ext = std::filesystem::path(spec).extension().string();
   return ext == ".svo" || ext == ".SVO";
 }
+
+namespace {
 
 /// Files the loaders do not read themselves (.svo octrees, ray files) get the same size limit.
 void check_input_size(const std::string& path, const InputLimits& limits) {
@@ -58,7 +59,7 @@ PreparedScene prepare_scene(const std::string& spec, const LoadOptions& load, co
                             const BvhOptions& bvh_options, const SceneVoxelOptions& voxel_options, int threads,
                             const std::vector<std::string>& cameras, std::FILE* log) {
   PreparedScene out;
-  if (ends_with_svo(spec)) {
+  if (is_svo_file(spec)) {
     if (accel != "svo" && accel != "bvh")
       throw Error(spec + ": a .svo file is traced by its octree (--accel svo), not '" + accel + "'");
     check_input_size(spec, load.limits);
@@ -128,7 +129,7 @@ PreparedScene prepare_scene(const std::string& spec, const LoadOptions& load, co
 }
 
 void refuse_octree_input(const std::string& spec, const std::string& command) {
-  if (ends_with_svo(spec))
+  if (is_svo_file(spec))
     throw Error(spec + ": an .svo file holds voxels, not triangles; '" + command +
                 "' needs a triangle scene ('specula render FILE.svo' renders it, 'specula info FILE.svo' "
                 "describes it)");
@@ -360,7 +361,7 @@ int trace(const TraceOptions& options) {
 }
 
 int info(const InfoOptions& options) {
-  if (ends_with_svo(options.scene)) {  // an octree file (voxelize -o): its header and sizes
+  if (is_svo_file(options.scene)) {  // an octree file (voxelize -o): its header and sizes
     check_input_size(options.scene, options.load.limits);
     const Timer timer;
     const SparseVoxelOctree svo = read_svo(options.scene);

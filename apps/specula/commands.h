@@ -154,6 +154,8 @@ PreparedScene prepare_scene(const std::string& spec, const LoadOptions& load, co
 double median(std::vector<double> v);
 void print_build(const char* accel, const BuildInfo& b, std::FILE* log = stdout);
 Scene load_timed(const std::string& spec, const LoadOptions& load, double& ms);
+/// Whether SCENE names an octree file (.svo), which rendering commands trace as it is.
+bool is_svo_file(const std::string& spec);
 /// Throws for an .svo file given to \p command, which needs triangles, naming the commands
 /// that read octree files (render, info).
 void refuse_octree_input(const std::string& spec, const std::string& command);

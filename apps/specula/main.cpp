@@ -142,6 +142,26 @@ void add_bvh_options(CLI::App* app, BvhOptions& bvh) {
       ->default_str("fast");
 }
 
+/// Refuses options of one acceleration structure given with another, or with an .svo file,
+/// which they would not change (render, bench render): given, not only at their defaults.
+void refuse_unused_structure_options(const CLI::App* cmd, const std::string& scene, const std::string& accel) {
+  const bool svo_file = cli::is_svo_file(scene);
+  for (const char* o : {"--bins", "--max-leaf", "--bvh-kernel", "--bvh-quality"}) {
+    if (cmd->count(o) == 0) continue;
+    if (svo_file) throw specula::Error(std::string(o) + ": " + scene + " is traced by its octree; BVH options apply to triangle scenes");
+    if (accel != "bvh") throw specula::Error(std::string(o) + " applies to --accel bvh, not '" + accel + "'");
+  }
+  for (const char* o : {"--depth", "--memory-limit", "--max-grid-memory"}) {
+    if (cmd->count(o) == 0) continue;
+    if (svo_file)
+      throw specula::Error(std::string(o) + ": " + scene + " is voxelized already (its depth is the one voxelize gave it)");
+    const bool grid_only = std::string(o) == "--max-grid-memory";
+    if (grid_only ? accel != "grid" : accel != "svo" && accel != "grid")
+      throw specula::Error(std::string(o) + " applies to --accel " + (grid_only ? "grid" : "svo|grid") + ", not '" +
+                           accel + "'");
+  }
+}
+
 /// --accel, --max-reflect, --max-refract, --threads: what every Whitted rendering command takes.
 void add_integrator_options(CLI::App* app, std::string& accel, specula::RenderOptions& ro, SceneVoxelOptions& voxel) {
   app->add_option("--accel", accel,
@@ -344,6 +364,9 @@ static int run(int argc, char** argv) {
 
   int rc = 0;
   try {
+    if (render_cmd->parsed()) refuse_unused_structure_options(render_cmd, render.scene, render.accel);
+    if (bench_render_cmd->parsed())
+      refuse_unused_structure_options(bench_render_cmd, bench_render.scene, bench_render.accel);
     if (render_cmd->parsed()) rc = cli::render(render);
     else if (trace_cmd->parsed()) rc = cli::trace(trace);
     else if (info_cmd->parsed()) rc = cli::info(info);
