@@ -507,6 +507,8 @@ TEST_F(Cli, OptionsOfAnotherStructureAreRefused) {
            {"render" + m + " --accel grid --max-leaf 4", "--max-leaf applies to --accel bvh, not 'grid'"},
            {"render" + m + " --accel brute --bvh-quality high", "--bvh-quality applies to --accel bvh, not 'brute'"},
            {"render" + m + " --depth 5", "--depth applies to --accel svo|grid, not 'bvh'"},
+           {"render" + m + " --voxel-mode cubes", "--voxel-mode applies to --accel svo|grid, not 'bvh'"},
+           {"render" + m + " --lod 1", "--lod applies to --accel svo, not 'bvh'"},
            {"render" + m + " --memory-limit 1G", "--memory-limit applies to --accel svo|grid, not 'bvh'"},
            {"render" + m + " --accel svo --max-grid-memory 1G", "--max-grid-memory applies to --accel grid, not 'svo'"},
            {"render" + f + " --depth 5", "is voxelized already"},

@@ -85,10 +85,6 @@ PreparedScene prepare_scene(const std::string& spec, const LoadOptions& load, co
     throw Error("--lod " + std::to_string(voxel_options.tracer.lod) + " is deeper than the octree (--depth " +
                 std::to_string(voxel_options.depth) + "): use 1.." + std::to_string(voxel_options.depth) +
                 ", or 0 for full depth");
-  if (accel == "grid" && voxel_options.tracer.lod > 0)
-    throw Error("--lod needs --accel svo: the voxel grid has no coarser levels");
-  if (accel != "svo" && accel != "grid" && (voxel_options.tracer.lod > 0 || voxel_options.tracer.mode != VoxelHitMode::Cubes))
-    throw Error("--lod and --voxel-mode apply to --accel svo|grid, not '" + accel + "'");
   if (accel == "grid" && VoxelGridTracer::bitmask_bytes(voxel_options.depth) > voxel_options.tracer.max_grid_bytes)
     throw Error("--accel grid --depth " + std::to_string(voxel_options.depth) + ": the dense voxel bitmask needs " +
                 format_bytes(VoxelGridTracer::bitmask_bytes(voxel_options.depth)) + ", over the limit of " +

@@ -151,6 +151,11 @@ void refuse_unused_structure_options(const CLI::App* cmd, const std::string& sce
     if (svo_file) throw specula::Error(std::string(o) + ": " + scene + " is traced by its octree; BVH options apply to triangle scenes");
     if (accel != "bvh") throw specula::Error(std::string(o) + " applies to --accel bvh, not '" + accel + "'");
   }
+  if (!svo_file && cmd->count("--voxel-mode") > 0 && accel != "svo" && accel != "grid")
+    throw specula::Error("--voxel-mode applies to --accel svo|grid, not '" + accel + "'");
+  if (!svo_file && cmd->count("--lod") > 0 && accel != "svo")
+    throw specula::Error(accel == "grid" ? std::string("--lod needs --accel svo: the voxel grid has no coarser levels")
+                                         : "--lod applies to --accel svo, not '" + accel + "'");
   for (const char* o : {"--depth", "--memory-limit", "--max-grid-memory"}) {
     if (cmd->count(o) == 0) continue;
     if (svo_file)
