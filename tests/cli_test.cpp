@@ -175,8 +175,29 @@ TEST_F(Cli, OutputAndOptionMistakesFailBeforeTheLoad) {
                "does not exist");
   expect_early("voxelize " + missing + " --depth 4 --format xyz -o '" + (dir_ / "v.svo").string() + "'",
                "--format xyz with -o");
+  expect_early("voxelize " + missing + " --depth 4 --no-attributes -o '" + (dir_ / "v.svo").string() + "'",
+               "--no-attributes with -o");
   expect_early("render " + missing + " --accel svo --depth 6 --lod 9", "--lod 9 is deeper than the octree (--depth 6)");
   expect_early("render " + missing + " --accel grid --lod 2", "--lod needs --accel svo");
+}
+
+// voxelize --table runs every strategy and writes nothing: a strategy or an output with it is a
+// usage error, as are a memory limit and --no-memory-limit together.
+TEST_F(Cli, VoxelizeOptionsThatContradictAreUsageErrors) {
+  const fs::path mesh = write("quad.obj", kQuadObj);
+  const std::string m = "voxelize '" + mesh.string() + "' --depth 3";
+  for (const std::string& extra : {std::string(" --table --tests aabb"), std::string(" --table --sat-at all"),
+                                   std::string(" --table --traversal octree"), std::string(" --table --no-clip-shortcut"),
+                                   std::string(" --table --format xyz"),
+                                   " --table -o '" + (dir_ / "t.svo").string() + "'",
+                                   std::string(" --memory-limit 1G --no-memory-limit")}) {
+    const RunResult r = run_cli(m + extra, dir_);
+    EXPECT_EQ(r.exit_code, 2) << extra << "\n" << r.out;
+    EXPECT_NE(r.err.find("excludes"), std::string::npos) << extra << "\n" << r.err;
+  }
+  EXPECT_FALSE(fs::exists(dir_ / "t.svo"));
+  EXPECT_EQ(run_cli(m + " --table", dir_).exit_code, 0);
+  EXPECT_EQ(run_cli(m + " --no-attributes -o '" + (dir_ / "t.xyz").string() + "'", dir_).exit_code, 0);
 }
 
 // The same check for a .svo file, whose depth is only known once it is read.

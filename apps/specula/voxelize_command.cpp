@@ -69,7 +69,7 @@ std::string xyz_text(const VoxelSet& set) {
 /// Writes \p set to \p path, the format chosen by the extension: .xyz (voxel coordinates as
 /// text) or .svo (the sparse voxel octree with its attributes, see docs/svo-format.md).
 void write_voxels(const std::string& path, const VoxelSet& set, const SparseVoxelOctree* built,
-                  const std::string& protect, FILE* info) {
+                  const std::string& protect) {
   const std::string ext = std::filesystem::path(path).extension().string();
   if (ext == ".xyz") {
     const std::string text = xyz_text(set);
@@ -77,16 +77,9 @@ void write_voxels(const std::string& path, const VoxelSet& set, const SparseVoxe
     return;
   }
   if (ext == ".svo") {
-    if (built) {
-      write_file_atomic(path, svo_to_bytes(*built), protect);
-      return;
-    }
-    SvoInfo si;
-    const SparseVoxelOctree svo = SparseVoxelOctree::build(set, {}, &si);
-    std::fprintf(info, "octree    %9.2f ms  (%s nodes, %.2f MiB, %.1f bytes/voxel, %.2f of them nodes)\n", si.build_ms,
-                 with_thousands(si.nodes).c_str(), static_cast<double>(si.bytes) / 1048576.0, si.bytes_per_voxel,
-                 si.node_bytes_per_voxel);
-    write_file_atomic(path, svo_to_bytes(svo), protect);
+    // voxelize() refuses .svo output without attributes before the load, so the octree is built.
+    if (built == nullptr) throw Error(path + ": no octree to write (voxelized without attributes)");
+    write_file_atomic(path, svo_to_bytes(*built), protect);
     return;
   }
   throw Error(path + ": unsupported voxel output '" + ext + "' (supported: .xyz, .svo)");
@@ -253,42 +246,45 @@ CLI::App* add_voxelize_command(CLI::App& app, VoxelizeCommandOptions& o) {
                   "octree depth D: 2^D voxels per axis over the scene's bounding cube (with --table: the deepest "
                   "row, default 8)")
       ->check(CLI::Range(1, kMaxVoxelDepth));
-  cmd->add_option("--tests", o.tests,
+  CLI::Option* tests = cmd->add_option("--tests", o.tests,
                   "tests deciding occupancy, comma-separated: aabb (always on), plane, sat. Without sat the result "
                   "is inexact (a superset)")
       ->capture_default_str();
-  cmd->add_option("--sat-at", o.sat_at, "where SAT runs: leaf (only on leaf voxels) or all (every octree level)")
+  CLI::Option* sat_at = cmd->add_option("--sat-at", o.sat_at, "where SAT runs: leaf (only on leaf voxels) or all (every octree level)")
       ->check(CLI::IsMember({"leaf", "all"}))
       ->capture_default_str();
-  cmd->add_option("--traversal", o.traversal,
+  CLI::Option* traversal = cmd->add_option("--traversal", o.traversal,
                   "octree: seed 000's descent from the root, tests per level; range: 32^3 bricks, then each "
                   "triangle's bounding-box voxels (default: range, octree with --sat-at all)")
       ->check(CLI::IsMember({"octree", "range"}));
-  cmd->add_flag("!--no-vertex-shortcut", o.vertex_shortcut,
+  CLI::Option* no_vertex = cmd->add_flag("!--no-vertex-shortcut", o.vertex_shortcut,
                 "do not accept a leaf voxel that contains a triangle vertex without running SAT");
-  cmd->add_flag("!--no-clip-shortcut", o.clip_shortcut,
+  CLI::Option* no_clip = cmd->add_flag("!--no-clip-shortcut", o.clip_shortcut,
                 "run the tests on every candidate voxel, also those the triangle's clipped part (computed for "
                 "the attributes) already shows it crosses (same result, slower)");
   cmd->add_flag("!--no-attributes", o.attributes, "occupancy only: skip clipping, averaging and contours");
   cmd->add_option("--threads", o.threads, "worker threads (0 = all cores)")
       ->check(CLI::Range(0, 1024))
       ->capture_default_str();
-  cmd->add_option("--memory-limit", o.memory_limit,
+  CLI::Option* limit = cmd->add_option("--memory-limit", o.memory_limit,
                   "refuse up front when the memory upper bound exceeds this (bytes; suffixes K, M, G, T: "
                   "1024-based); 0 = half the physical memory")
       ->transform(CLI::AsSizeValue(false));
-  cmd->add_flag("--no-memory-limit", o.no_memory_limit, "never refuse (the estimate is still printed)");
-  cmd->add_flag("--table", o.table,
+  cmd->add_flag("--no-memory-limit", o.no_memory_limit, "never refuse (the estimate is still printed)")->excludes(limit);
+  CLI::Option* table = cmd->add_flag("--table", o.table,
                 "print seed 000's build-time table: every strategy at depths 1..D (D = --depth or 8), our ms "
                 "beside the seed's seconds, voxel counts and false positives");
   cmd->add_option("--repeat", o.repeat, "runs per measurement; the best time is printed")
       ->check(CLI::Range(1, 1000))
       ->capture_default_str();
-  cmd->add_option("--format", o.format,
+  CLI::Option* format = cmd->add_option("--format", o.format,
                   "xyz: print the occupied voxels as 'x y z' lines sorted by x, then y, then z (to stdout, or to "
                   "-o; the summary then goes to stderr)")
       ->check(CLI::IsMember({"xyz"}));
-  cmd->add_option("-o,--output", o.output, "write the voxels to FILE: .xyz (coordinates) or .svo (octree, for specula render FILE.svo), atomically");
+  CLI::Option* output = cmd->add_option("-o,--output", o.output, "write the voxels to FILE: .xyz (coordinates) or .svo (octree, for specula render FILE.svo), atomically");
+  // The table runs every strategy itself and writes no voxels: a strategy or an output given
+  // with it is a mistake, not something to ignore.
+  for (CLI::Option* x : {tests, sat_at, traversal, no_vertex, no_clip, format, output}) table->excludes(x);
   return cmd;
 }
 
@@ -302,6 +298,10 @@ int voxelize(const VoxelizeCommandOptions& o) {
     if (o.format == "xyz" && ext != ".xyz")
       throw Error("--format xyz with -o " + o.output + ": the file's extension chooses its format (" + ext +
                   "); name it .xyz, or drop --format");
+    if (ext == ".svo" && !o.attributes)
+      throw Error("--no-attributes with -o " + o.output + ": an octree file holds every voxel's normal, colour and "
+                  "contours, which --no-attributes does not compute (a render of it would be flat); write .xyz "
+                  "for the occupancy alone, or drop --no-attributes");
     check_output_path(o.output);  // before the load and the voxelization
   }
   const bool xyz_to_stdout = o.format == "xyz" && o.output.empty();
@@ -367,7 +367,7 @@ int voxelize(const VoxelizeCommandOptions& o) {
   }
 
   if (!o.output.empty()) {
-    write_voxels(o.output, set, v.attributes ? &svo : nullptr, o.scene, info);
+    write_voxels(o.output, set, v.attributes ? &svo : nullptr, o.scene);
     std::fprintf(info, "wrote     %s\n", o.output.c_str());
   } else if (xyz_to_stdout) {
     const std::string text = xyz_text(set);
