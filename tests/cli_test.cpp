@@ -411,6 +411,10 @@ TEST_F(Cli, BenchTraceJsonHasEveryRayKindAndTheKernel) {
   for (const char* k : {"primary", "shadow", "reflection", "refraction", "diffuse", "random"})
     EXPECT_NE(t.out.find(std::string("\n") + k + " "), std::string::npos) << k << "\n" << t.out;
   EXPECT_NE(run_cli("bench trace --scene cornell --bvh-kernel avx9", dir_).exit_code, 0);
+  // --mesh replaces --scene: both at once is a usage error, not one of them silently dropped.
+  const RunResult both = run_cli("bench trace --scene cornell --mesh x.obj", dir_);
+  EXPECT_EQ(both.exit_code, 2);
+  EXPECT_NE(both.err.find("excludes"), std::string::npos) << both.err;
   // --bvh-quality high: the JSON names the quality and the optimisation's figures.
   const RunResult hq = run_cli("bench trace --scene cornell --width 24 --height 16 --repeat 1 --no-embree --bvh-quality high --json", dir_);
   ASSERT_EQ(hq.exit_code, 0) << hq.err;
