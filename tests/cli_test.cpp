@@ -181,6 +181,24 @@ TEST_F(Cli, OutputAndOptionMistakesFailBeforeTheLoad) {
   expect_early("render " + missing + " --accel grid --lod 2", "--lod needs --accel svo");
 }
 
+// A mesh folder that does not exist is said so, not skipped in favour of the next one.
+TEST_F(Cli, DataFolderThatDoesNotExistIsReported) {
+  const fs::path mesh = write("quad.obj", kQuadObj);
+  const std::string missing = (dir_ / "no-such-meshes").string();
+  const RunResult r = run_cli("info '" + mesh.string() + "' --data '" + missing + "'", dir_);
+  EXPECT_EQ(r.exit_code, 2);
+  EXPECT_NE(r.err.find("--data"), std::string::npos) << r.err;
+  EXPECT_NE(r.err.find("no-such-meshes"), std::string::npos) << r.err;
+  const char* old = std::getenv("SPECULA_DATA");
+  const std::string saved = old ? old : "";
+  ::setenv("SPECULA_DATA", missing.c_str(), 1);
+  const RunResult env = run_cli("info '" + mesh.string() + "'", dir_);
+  if (old) ::setenv("SPECULA_DATA", saved.c_str(), 1);
+  else ::unsetenv("SPECULA_DATA");
+  EXPECT_EQ(env.exit_code, 0) << env.err;  // a warning: the file given needs no mesh folder
+  EXPECT_NE(env.err.find("warning: SPECULA_DATA=" + missing + " is not a folder"), std::string::npos) << env.err;
+}
+
 // voxelize --table runs every strategy and writes nothing: a strategy or an output with it is a
 // usage error, as are a memory limit and --no-memory-limit together.
 TEST_F(Cli, VoxelizeOptionsThatContradictAreUsageErrors) {

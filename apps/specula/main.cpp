@@ -19,6 +19,7 @@
 #include <cerrno>
 #include <cstdio>
 #include <cstring>
+#include <cstdlib>
 #include <filesystem>
 #include <iostream>
 #include <string>
@@ -116,7 +117,8 @@ void add_limit_options(CLI::App* app, LoadOptions& load) {
 void add_data_option(CLI::App* app, LoadOptions& load) {
   app->add_option("--data", load.data.cli_dir,
                   "folder searched first for meshes of built-in scenes (then $SPECULA_DATA, then "
-                  "../shared/data/meshes beside the source tree)");
+                  "../shared/data/meshes beside the source tree)")
+      ->check(CLI::ExistingDirectory);
   add_limit_options(app, load);
 }
 
@@ -365,6 +367,14 @@ static int run(int argc, char** argv) {
     }
     // --help and --version exit 0; every usage error exits 2 (CLI11's own codes are 100+).
     return app.exit(e) == 0 ? 0 : 2;
+  }
+
+  // A mistyped $SPECULA_DATA would otherwise be skipped without a word, and the meshes taken
+  // from the next folder of the search path.
+  if (const char* env = std::getenv("SPECULA_DATA"); env != nullptr && *env != '\0') {
+    std::error_code ec;
+    if (!std::filesystem::is_directory(env, ec))
+      std::fprintf(stderr, "warning: SPECULA_DATA=%s is not a folder; it is not searched for meshes\n", env);
   }
 
   int rc = 0;
