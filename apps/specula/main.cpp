@@ -379,14 +379,17 @@ static int run(int argc, char** argv) {
 
   int rc = 0;
   try {
-    if (render_cmd->parsed()) refuse_unused_structure_options(render_cmd, render.scene, render.accel);
-    if (bench_render_cmd->parsed())
-      refuse_unused_structure_options(bench_render_cmd, bench_render.scene, bench_render.accel);
-    if (render_cmd->parsed()) rc = cli::render(render);
+    if (render_cmd->parsed()) {
+      refuse_unused_structure_options(render_cmd, render.scene, render.accel);
+      rc = cli::render(render);
+    }
     else if (trace_cmd->parsed()) rc = cli::trace(trace);
     else if (info_cmd->parsed()) rc = cli::info(info);
     else if (bench_trace_cmd->parsed()) rc = cli::bench_trace(bench);
-    else if (bench_render_cmd->parsed()) rc = cli::bench_render(bench_render);
+    else if (bench_render_cmd->parsed()) {
+      refuse_unused_structure_options(bench_render_cmd, bench_render.scene, bench_render.accel);
+      rc = cli::bench_render(bench_render);
+    }
     else if (bench_svo_cmd->parsed()) rc = cli::bench_svo(bench_svo);
     else if (voxelize_cmd->parsed()) rc = cli::voxelize(voxelize);
   } catch (const specula::Error& e) {
