@@ -839,7 +839,27 @@ void process_brick(const Context& cx, uint64_t brick, const BinEntry* first, con
 
   const bool octree = cx.opt.strategy.traversal == VoxelTraversal::Octree;
   const bool plane_cut = cx.tests.plane_leaf || cx.tests.sat_leaf;
+  // A brick's triangles are near in space but not in index order: their indices, attributes
+  // and vertices are scattered loads that missed the cache often (a tenth of the brick stage
+  // in a profile). They are prefetched a few triangles ahead: the index triple and attributes
+  // kAhead entries ahead, the vertices (whose addresses need the indices) half as far.
+  constexpr std::ptrdiff_t kAhead = 4;
+  const auto prefetch_tri = [&](const BinEntry* ahead) {
+    if (last - ahead > kAhead) {
+      const uint32_t tri = ahead[kAhead].tri;
+      __builtin_prefetch(cx.in.indices.data() + 3 * static_cast<size_t>(tri));
+      if (attrs && !cx.in.attributes.empty()) __builtin_prefetch(cx.in.attributes.data() + tri);
+    }
+    if (last - ahead > kAhead / 2) {
+      const uint32_t* idx = cx.in.indices.data() + 3 * static_cast<size_t>(ahead[kAhead / 2].tri);
+      for (int i = 0; i < 3; ++i) {
+        __builtin_prefetch(cx.lat.data() + idx[i]);
+        if (attrs) __builtin_prefetch(cx.in.positions.data() + idx[i]);
+      }
+    }
+  };
   for (const BinEntry* e = first; e != last; ++e) {
+    prefetch_tri(e);
     cur_tri = e->tri;
     TriBox t;
     {
