@@ -613,6 +613,23 @@ TEST_F(Cli, BenchSvoPrintsSeedTablesContourCostAndPsnr) {
   EXPECT_NE(run_cli("bench svo --depths 0", dir_).exit_code, 0);
 }
 
+// An entry listed twice in --cameras, --sizes or --depths would be measured and printed twice:
+// refused before the scene is loaded, naming the entry (and how it was first written).
+TEST_F(Cli, BenchListsRefuseRepeatedEntries) {
+  for (const auto& [cmd, want] : std::vector<std::pair<std::string, std::string>>{
+           {"bench render --cameras water,bunny,water --sizes 8x8 --frames 1", "--cameras: 'water' is listed twice"},
+           {"bench render --sizes 8x8,16x12,8x8 --frames 1", "--sizes: '8x8' is listed twice"},
+           {"bench render --sizes 8x8,08x8 --frames 1", "--sizes: '08x8' is listed twice (as '8x8')"},
+           {"bench svo --depths 3,4,3 --sizes 8x8 --frames 1", "--depths: '3' is listed twice"},
+           {"bench svo --depths 3,03 --sizes 8x8 --frames 1", "--depths: '03' is listed twice (as '3')"},
+           {"bench svo --cameras bunny,bunny --depths 3 --sizes 8x8 --frames 1", "--cameras: 'bunny' is listed twice"}}) {
+    const RunResult r = run_cli(cmd, dir_);
+    EXPECT_EQ(r.exit_code, 1) << cmd;
+    EXPECT_NE(r.err.find(want), std::string::npos) << cmd << "\n" << r.err;
+    EXPECT_EQ(r.out.find("load"), std::string::npos) << cmd << ": refused after loading\n" << r.out;
+  }
+}
+
 // ---------------------------------------------------------------------------------------------
 // Input limits (docs/SECURITY.md, "Limits"): each flag lowers a limit until a small input is
 // refused with a message naming the file, the value, the limit and the flag; the default or a

@@ -6,6 +6,7 @@
 #include <limits>
 #include <cstdio>
 #include <ctime>
+#include <functional>
 #include <optional>
 #include <sstream>
 #include <string>
@@ -35,9 +36,28 @@ std::vector<std::string> split_list(const std::string& list) {
   return out;
 }
 
+/// Refuses a list entry given twice (it would be measured, and printed, twice): \p items
+/// parsed from \p option's list, \p text of item i as the user wrote it.
+template <class T, class Eq>
+void refuse_repeats(const char* option, const std::vector<T>& items, const std::vector<std::string>& text, Eq eq) {
+  for (size_t i = 1; i < items.size(); ++i)
+    for (size_t j = 0; j < i; ++j)
+      if (eq(items[i], items[j]))
+        throw Error(std::string(option) + ": '" + text[i] + "' is listed twice" +
+                    (text[i] == text[j] ? std::string() : " (as '" + text[j] + "')"));
+}
+
+/// The cameras of \p list, each named once.
+std::vector<std::string> parse_cameras(const std::string& list) {
+  std::vector<std::string> cameras = split_list(list);
+  refuse_repeats("--cameras", cameras, cameras, std::equal_to<>());
+  return cameras;
+}
+
 std::vector<Size> parse_sizes(const std::string& list) {
   std::vector<Size> sizes;
-  for (const std::string& s : split_list(list)) {
+  const std::vector<std::string> text = split_list(list);
+  for (const std::string& s : text) {
     Size size;
     char x = 0, extra = 0;
     std::istringstream in(s);
@@ -52,6 +72,8 @@ std::vector<Size> parse_sizes(const std::string& list) {
     sizes.push_back(size);
   }
   if (sizes.empty()) throw Error("--sizes: no image size given");
+  refuse_repeats("--sizes", sizes, text,
+                 [](const Size& a, const Size& b) { return a.width == b.width && a.height == b.height; });
   return sizes;
 }
 
@@ -143,7 +165,8 @@ double psnr(const Film& a, const Film& b) {
 
 std::vector<int> parse_depths(const std::string& list) {
   std::vector<int> depths;
-  for (const std::string& s : split_list(list)) {
+  const std::vector<std::string> text = split_list(list);
+  for (const std::string& s : text) {
     int d = 0;
     std::istringstream in(s);
     char extra = 0;
@@ -152,6 +175,7 @@ std::vector<int> parse_depths(const std::string& list) {
     depths.push_back(d);
   }
   if (depths.empty()) throw Error("--depths: no depth given");
+  refuse_repeats("--depths", depths, text, std::equal_to<>());
   return depths;
 }
 
@@ -163,7 +187,7 @@ int bench_svo(const BenchSvoOptions& options) {
   specula::RenderOptions ro = options.render;
   const int threads = ro.threads > 0 ? ro.threads : tbb::info::default_concurrency();
   SceneVoxelOptions none;
-  std::vector<std::string> cameras = split_list(options.cameras);
+  std::vector<std::string> cameras = parse_cameras(options.cameras);
   const bool json = options.json;
   std::FILE* const log = json ? stderr : stdout;  // with --json, stdout carries the JSON only
   const PreparedScene prepared = prepare_scene(options.scene, options.load, "bvh", BvhOptions{}, none, ro.threads,
@@ -355,7 +379,7 @@ int bench_render(const BenchRenderOptions& options) {
   specula::RenderOptions ro = options.render;
   const int threads = ro.threads > 0 ? ro.threads : tbb::info::default_concurrency();
   // Every camera named is looked up before the build ("": the scene must have one).
-  std::vector<std::string> cameras = split_list(options.cameras);
+  std::vector<std::string> cameras = parse_cameras(options.cameras);
   const bool json = options.json;
   const PreparedScene prepared =
       prepare_scene(options.scene, options.load, options.accel, options.bvh, options.voxel, ro.threads,
