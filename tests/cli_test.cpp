@@ -91,6 +91,9 @@ TEST_F(Cli, TraceStatsGoToStderr) {
   ASSERT_EQ(r.exit_code, 0) << r.err;
   EXPECT_EQ(r.out, "2 0\n");
   for (const char* key : {"load", "build", "trace", "Mrays/s"}) EXPECT_NE(r.err.find(key), std::string::npos) << r.err;
+  // The build line is render's (nodes, leaves, depth, SAH cost, MiB); one ray is "1 ray".
+  for (const char* key : {"(bvh: ", " leaves, depth ", " MiB)", "(1 ray, 1 thread, median of 3 passes)"})
+    EXPECT_NE(r.err.find(key), std::string::npos) << key << "\n" << r.err;
 }
 
 TEST_F(Cli, MalformedRayFileNamesTheLine) {

@@ -346,10 +346,9 @@ int trace(const TraceOptions& options) {
     const double ms = median(times);
     std::fprintf(stderr, "load     %9.2f ms  (%s triangles)\n", load_ms,
                  with_thousands(scene.triangle_count()).c_str());
-    std::fprintf(stderr, "build    %9.2f ms  (%s, %s nodes, SAH cost %.2f, %zu bytes)\n", build.build_ms,
-                 options.accel.c_str(), with_thousands(build.nodes).c_str(), build.sah_cost, build.bytes);
-    std::fprintf(stderr, "trace    %9.3f ms  (%s rays, %d thread%s, median of %d pass%s)\n", ms,
-                 with_thousands(rays.size()).c_str(), threads, threads == 1 ? "" : "s", options.repeat,
+    print_build(options.accel.c_str(), build, stderr);  // the build line render prints
+    std::fprintf(stderr, "trace    %9.3f ms  (%s ray%s, %d thread%s, median of %d pass%s)\n", ms,
+                 with_thousands(rays.size()).c_str(), rays.size() == 1 ? "" : "s", threads, threads == 1 ? "" : "s", options.repeat,
                  options.repeat == 1 ? "" : "es");
     std::fprintf(stderr, "speed    %9.2f Mrays/s\n", static_cast<double>(rays.size()) / (std::max(ms, 1e-9) * 1e3));
   }
