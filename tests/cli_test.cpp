@@ -600,11 +600,21 @@ TEST_F(Cli, VoxelizeToSvoThenRenderTheFile) {
   EXPECT_NE(ib.err.find("bad.svo"), std::string::npos) << ib.err;
   const fs::path rays = write("rays.txt", "0 0 1 0 0 -1\n");
   for (const std::string& cmd : {"trace '" + svo.string() + "' --rays '" + rays.string() + "'",
-                                 "voxelize '" + svo.string() + "' --depth 3", "bench trace --mesh '" + svo.string() + "'"}) {
+                                 "voxelize '" + svo.string() + "' --depth 3", "bench trace --mesh '" + svo.string() + "'",
+                                 "bench svo --scene '" + svo.string() + "' --sizes 8x8 --frames 1",
+                                 // --accel names a structure the file cannot be traced with (bvh is the
+                                 // default, so it was silently ignored when given)
+                                 "render '" + svo.string() + "' --accel bvh -o '" + png.string() + "'",
+                                 "bench render --scene '" + svo.string() + "' --accel bvh --sizes 8x8 --frames 1"}) {
     const RunResult t = run_cli(cmd, dir_);
     EXPECT_EQ(t.exit_code, 1) << cmd;
     EXPECT_NE(t.err.find("holds voxels, not triangles"), std::string::npos) << cmd << "\n" << t.err;
+    EXPECT_EQ(t.out.find("bench svo:"), std::string::npos) << cmd << ": refused after starting\n" << t.out;
   }
+  // bench render names what it times: the file's octree, not the default 'bvh'.
+  const RunResult br = run_cli("bench render --scene '" + svo.string() + "' --sizes 8x8 --frames 1", dir_);
+  ASSERT_EQ(br.exit_code, 0) << br.err;
+  EXPECT_NE(br.out.find(", svo depth 5 cubes (file), "), std::string::npos) << br.out;
 }
 
 TEST_F(Cli, BenchSvoPrintsSeedTablesContourCostAndPsnr) {

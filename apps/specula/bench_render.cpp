@@ -18,6 +18,7 @@
 #include "commands.h"
 #include "core/format.h"
 #include "specula/error.h"
+#include "specula/svo.h"
 
 namespace specula::cli {
 
@@ -182,6 +183,7 @@ std::vector<int> parse_depths(const std::string& list) {
 }  // namespace
 
 int bench_svo(const BenchSvoOptions& options) {
+  refuse_octree_input(options.scene, "bench svo");  // it voxelizes the triangles at each depth
   const std::vector<Size> sizes = parse_sizes(options.sizes);
   const std::vector<int> depths = parse_depths(options.depths);
   specula::RenderOptions ro = options.render;
@@ -389,9 +391,12 @@ int bench_render(const BenchRenderOptions& options) {
   if (cameras.empty())
     for (const Camera& c : scene.cameras) cameras.push_back(c.name);
   const bool voxels = options.accel == "svo" || options.accel == "grid";
-  const std::string accel = voxels ? options.accel + " depth " + std::to_string(options.voxel.depth) + " " +
-                                         to_string(options.voxel.tracer.mode)
-                                   : options.accel;
+  const auto* file_svo = dynamic_cast<const SparseVoxelOctree*>(tracer.get());
+  const std::string accel =
+      is_svo_file(options.scene) && file_svo != nullptr
+          ? "svo depth " + std::to_string(file_svo->grid().depth) + " " + to_string(file_svo->hit_mode()) + " (file)"
+      : voxels ? options.accel + " depth " + std::to_string(options.voxel.depth) + " " + to_string(options.voxel.tracer.mode)
+               : options.accel;
   const bool pool = options.scene == "pool";
   if (!json) {
     std::printf("\nbench render: %s, %s, %d thread%s, max reflect %d / refract %d, median of %d frame%s\n\n",

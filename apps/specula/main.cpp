@@ -148,6 +148,9 @@ void add_bvh_options(CLI::App* app, BvhOptions& bvh) {
 /// which they would not change (render, bench render): given, not only at their defaults.
 void refuse_unused_structure_options(const CLI::App* cmd, const std::string& scene, const std::string& accel) {
   const bool svo_file = cli::is_svo_file(scene);
+  if (svo_file && cmd->count("--accel") > 0 && accel != "svo")
+    throw specula::Error("--accel " + accel + ": " + scene + " holds voxels, not triangles; it is traced by its octree "
+                         "(--accel svo, the default for .svo files)");
   for (const char* o : {"--bins", "--max-leaf", "--bvh-kernel", "--bvh-quality"}) {
     if (cmd->count(o) == 0) continue;
     if (svo_file) throw specula::Error(std::string(o) + ": " + scene + " is traced by its octree; BVH options apply to triangle scenes");
