@@ -583,6 +583,59 @@ TEST(JsonScene, BuiltinShapesTransformsMaterialsLightsCameraSky) {
   fs::remove_all(d);
 }
 
+// Cameras are selected by name (--camera, bench render's camera list): a name given twice would
+// hide the second camera. glTF files often repeat names ("Camera"), so the loader renames the
+// later ones with a warning; a JSON scene's explicit repeat is an error; Scene::validate refuses
+// a scene built in code with two cameras of one name.
+TEST(GltfLoader, RepeatedCameraNamesAreMadeUnique) {
+  const fs::path d = test::temp_dir("gltfcams");
+  std::string js = gltf_json(data_uri(gltf_buffer()), 96,
+                             ",\"cameras\":[{\"name\":\"cam\",\"type\":\"perspective\",\"perspective\":{\"yfov\":0.5,\"znear\":0.1}}]");
+  const std::string nodes_old = "\"scenes\":[{\"nodes\":[0]}],\"nodes\":[{\"mesh\":0}],";
+  js.replace(js.find(nodes_old), nodes_old.size(),
+             "\"scenes\":[{\"nodes\":[0,1,2,3]}],\"nodes\":[{\"mesh\":0},{\"camera\":0,\"translation\":[0,1,5]},"
+             "{\"camera\":0,\"translation\":[0,1,6]},{\"camera\":0,\"translation\":[0,1,7]}],");
+  write_text(d / "cams.gltf", js);
+  std::vector<std::string> w;
+  const Scene s = load_gltf(d / "cams.gltf", quiet(&w));
+  ASSERT_EQ(s.cameras.size(), 3u);
+  EXPECT_EQ(s.cameras[0].name, "cam");
+  EXPECT_EQ(s.cameras[1].name, "cam#2");
+  EXPECT_EQ(s.cameras[2].name, "cam#3");
+  EXPECT_EQ(s.cameras[2].position, (Vec3{0, 1, 7}));
+  ASSERT_EQ(w.size(), 2u);
+  EXPECT_NE(w[0].find("camera name 'cam' is taken by an earlier camera; this one is 'cam#2'"), std::string::npos) << w[0];
+  fs::remove_all(d);
+}
+
+TEST(JsonScene, RepeatedCameraNameIsAnError) {
+  const fs::path d = test::temp_dir("jsoncams");
+  write_text(d / "c.json", R"({"meshes": [{"builtin": "box"}],
+    "cameras": [{"name": "a", "position": [0, 0, 5]}, {"name": "b", "position": [0, 0, 6]},
+                {"name": "a", "position": [0, 0, 7]}]})");
+  const std::string msg = test::error_of([&] { load_json_scene(d / "c.json", quiet()); });
+  EXPECT_NE(msg.find("c.json"), std::string::npos) << msg;
+  EXPECT_NE(msg.find("cameras[2].name: 'a' is already the name of cameras[0]"), std::string::npos) << msg;
+  // Unnamed cameras get generated names that never collide with given ones.
+  write_text(d / "u.json", R"({"meshes": [{"builtin": "box"}],
+    "cameras": [{"name": "camera1", "position": [0, 0, 5]}, {"position": [0, 0, 6]}, {"position": [0, 0, 7]}]})");
+  const Scene s = load_json_scene(d / "u.json", quiet());
+  ASSERT_EQ(s.cameras.size(), 3u);
+  EXPECT_EQ(s.cameras[0].name, "camera1");
+  EXPECT_EQ(s.cameras[1].name, "camera1#2");
+  EXPECT_EQ(s.cameras[2].name, "camera2");
+  fs::remove_all(d);
+}
+
+TEST(SceneValidate, RefusesTwoCamerasOfOneName) {
+  Scene s = make_builtin_scene("cornell");
+  ASSERT_FALSE(s.cameras.empty());
+  EXPECT_NO_THROW(s.validate());
+  s.cameras.push_back(s.cameras.front());
+  const std::string msg = test::error_of([&] { s.validate(); });
+  EXPECT_NE(msg.find("are both named '" + s.cameras.front().name + "'"), std::string::npos) << msg;
+}
+
 TEST(JsonScene, ErrorsNameTheKeyPathAndPosition) {
   const fs::path d = test::temp_dir("jsonerr");
   write_text(d / "t.json", R"({"meshes": [{"builtin": "box"}, {"builtin": "box", "transform": {"scale": "big"}}]})");

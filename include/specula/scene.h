@@ -103,7 +103,8 @@ struct Scene {
   uint32_t add_material(Material m);
   /// Index of the camera named \p name, or nullopt.
   std::optional<size_t> find_camera(const std::string& camera_name) const;
-  /// Throws specula::Error naming the problem if any index, material id or vertex is invalid.
+  /// Throws specula::Error naming the problem if any index, material id or vertex is invalid, or
+  /// if two cameras share a name (cameras are selected by name).
   void validate() const;
 };
 

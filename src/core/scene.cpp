@@ -102,6 +102,10 @@ void Scene::validate() const {
     if (material_ids[i] >= materials.size())
       throw Error(who + ": triangle " + std::to_string(i) + " uses material " +
                   std::to_string(material_ids[i]) + " of " + std::to_string(materials.size()));
+  for (size_t i = 1; i < cameras.size(); ++i)
+    if (const auto first = find_camera(cameras[i].name); *first != i)
+      throw Error(who + ": cameras " + std::to_string(*first) + " and " + std::to_string(i) + " are both named '" +
+                  cameras[i].name + "' (cameras are selected by name)");
 }
 
 void add_default_camera_and_light(Scene& scene) {

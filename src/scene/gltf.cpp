@@ -702,8 +702,12 @@ class GltfLoader {
       return;
     }
     Camera c;
-    c.name = !gc.name.empty() ? gc.name
-                              : (!node.name.empty() ? node.name : "camera" + std::to_string(node.camera));
+    const std::string given = !gc.name.empty() ? gc.name
+                                               : (!node.name.empty() ? node.name : "camera" + std::to_string(node.camera));
+    c.name = detail::unique_camera_name(scene, given);
+    if (c.name != given)
+      detail::warn(options_, file_ + ": node " + std::to_string(ni) + ": camera name '" + given +
+                                 "' is taken by an earlier camera; this one is '" + c.name + "'");
     const double yfov = gc.perspective.yfov;
     c.vfov_degrees = (std::isfinite(yfov) && yfov > 0 && yfov < kPi)
                          ? static_cast<float>(yfov * 180.0 / 3.14159265358979323846)

@@ -389,8 +389,15 @@ class JsonSceneLoader {
     if (!c.is_object()) fail(where + ": expected an object");
     check_keys(c, where, {"name", "position", "target", "up", "fov", "comment"});
     Camera out;
-    out.name = c.contains("name") ? get_string(c["name"], where + ".name")
-                                  : (scene_.cameras.empty() ? std::string("default") : "camera" + std::to_string(scene_.cameras.size()));
+    if (c.contains("name")) {
+      out.name = get_string(c["name"], where + ".name");
+      if (const auto earlier = scene_.find_camera(out.name))
+        fail(where + ".name: '" + out.name + "' is already the name of cameras[" + std::to_string(*earlier) +
+             "] (--camera selects cameras by name)");
+    } else {
+      out.name = detail::unique_camera_name(
+          scene_, scene_.cameras.empty() ? std::string("default") : "camera" + std::to_string(scene_.cameras.size()));
+    }
     if (c.contains("position")) out.position = get_vec3(c["position"], where + ".position");
     if (c.contains("target")) out.target = get_vec3(c["target"], where + ".target");
     if (c.contains("up")) out.up = get_vec3(c["up"], where + ".up");

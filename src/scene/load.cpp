@@ -351,6 +351,14 @@ void validate_scene(const Scene& scene, const std::string& file) {
                                " zero area (collinear or repeated vertices)");
 }
 
+std::string unique_camera_name(const Scene& scene, const std::string& name) {
+  if (!scene.find_camera(name)) return name;
+  for (size_t k = 2;; ++k) {
+    std::string candidate = name + "#" + std::to_string(k);
+    if (!scene.find_camera(candidate)) return candidate;
+  }
+}
+
 
 }  // namespace detail
 }  // namespace specula

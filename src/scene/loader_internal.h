@@ -66,5 +66,9 @@ void warn_dropped(const LoadOptions& options, const std::string& file, size_t dr
 /// Runs scene.validate() and rethrows its error prefixed with \p file.
 void validate_scene(const Scene& scene, const std::string& file);
 
+/// \p name when no camera of \p scene has it yet, else the first of name#2, name#3, ... that
+/// none has (cameras are selected by name: two with one name would hide the second).
+std::string unique_camera_name(const Scene& scene, const std::string& name);
+
 
 }  // namespace specula::detail
