@@ -1035,6 +1035,14 @@ void process_brick(const Context& cx, uint64_t brick, const BinEntry* first, con
     const double side = static_cast<double>(cx.chk.grid.voxel_size());
     out.attrs.reserve(nv);
     for (size_t i = 0; i < nv; ++i) {
+      if (i + 8 < nv) {  // slots are in first-touch order, read here in code order
+        const char* ahead = reinterpret_cast<const char*>(&s.slots[s.slot_of[sorted[i + 8]]]);
+        __builtin_prefetch(ahead);
+        __builtin_prefetch(ahead + 64);
+        __builtin_prefetch(ahead + sizeof(Slot) - 1);
+      }
+      if (i + 4 < nv && !cx.in.attributes.empty())
+        __builtin_prefetch(cx.in.attributes.data() + s.slots[s.slot_of[sorted[i + 4]]].best_tri);
       const Slot& sl = s.slots[s.slot_of[sorted[i]]];
       VoxelAttributes a;
       const bool weighted = sl.nw[3] > 0.0;
