@@ -8,7 +8,9 @@
 # the checkout), and prints per binary and ray kind (primary, shadow, reflection, refraction,
 # diffuse, random: the single-ray rows) the best and the median Mrays/s of the rounds.
 # A single bench trace run swings 10-20% per kind on the shared VMs (BENCHMARKS.md); the best of
-# several alternated rounds is what compares. Check that CPU is the quiet one first (ab.sh).
+# several alternated rounds is what compares. Check that CPU is the quiet one first (ab.sh), and
+# run both orders (OLD NEW, then NEW OLD): the binary run second in each round has been seen to
+# gain 5-10% in every kind.
 set -euo pipefail
 
 cpu=0
