@@ -4,6 +4,7 @@
 #include <sys/wait.h>
 
 #include <algorithm>
+#include <atomic>
 #include <array>
 #include <cmath>
 #include <cstdlib>
@@ -552,6 +553,34 @@ TEST(Voxelize, BitIdenticalForAnyThreadCount) {
           << threads << " threads: attributes differ";
     }
   }
+}
+
+// VoxelizeOptions::progress: called once per brick, from one thread at a time, with fractions
+// that rise to exactly 1; the voxels are the same with or without it.
+TEST(Voxelize, ProgressRisesToOneOncePerBrick) {
+  const Mesh m = random_mesh(5, 400);
+  VoxelizeOptions o;
+  o.depth = 8;
+  o.threads = 4;
+  VoxelizeStats st;
+  const VoxelSet plain = voxelize(m.input(), o, &st);
+  ASSERT_GT(st.bricks, 8u);
+  std::vector<double> seen;
+  std::atomic<int> inside{0};
+  bool overlapped = false;
+  o.progress = [&](double f) {
+    overlapped |= inside.fetch_add(1) != 0;
+    seen.push_back(f);
+    inside.fetch_sub(1);
+  };
+  const VoxelSet reported = voxelize(m.input(), o);
+  EXPECT_FALSE(overlapped) << "progress called from two threads at once";
+  ASSERT_EQ(seen.size(), st.bricks);
+  for (size_t i = 1; i < seen.size(); ++i) EXPECT_GT(seen[i], seen[i - 1]) << i;
+  EXPECT_GT(seen.front(), 0.0);
+  EXPECT_EQ(seen.back(), 1.0);
+  EXPECT_EQ(reported.codes, plain.codes);
+  EXPECT_EQ(std::memcmp(reported.attrs.data(), plain.attrs.data(), plain.attrs.size() * sizeof(VoxelAttributes)), 0);
 }
 
 /// FNV-1a over the set's codes and attribute bytes.

@@ -102,7 +102,10 @@ PreparedScene prepare_scene(const std::string& spec, const LoadOptions& load, co
     v.kind = accel;
     v.threads = threads;
     SceneVoxelInfo info;
+    ProgressLine progress("voxelizing");
+    v.progress = [&progress](double f) { progress.update(f); };
     out.tracer = voxelize_scene(scene, v, &info);
+    progress.finish();
     out.build_ms = info.voxelize_ms + info.build_ms;
     out.bytes = info.bytes;
     std::fprintf(log, "voxelize %9.2f ms  (depth %d, %s voxels)\n", info.voxelize_ms, v.depth, with_thousands(info.voxels).c_str());
@@ -131,6 +134,28 @@ void refuse_octree_input(const std::string& spec, const std::string& command) {
                 "describes it)");
 }
 
+ProgressLine::ProgressLine(std::string label) : label_(std::move(label)), tty_(isatty(STDERR_FILENO) != 0) {}
+
+ProgressLine::~ProgressLine() { finish(); }
+
+void ProgressLine::update(double fraction) {
+  if (!tty_) return;
+  std::lock_guard lock(mutex_);
+  if (timer_.ms() < 1000.0) return;
+  const int pct = static_cast<int>(std::clamp(fraction, 0.0, 1.0) * 100.0);
+  if (pct == last_) return;
+  last_ = pct;
+  std::fprintf(stderr, "\r%s %3d%%  (%.1f s)", label_.c_str(), pct, timer_.ms() / 1000.0);
+  std::fflush(stderr);
+  shown_ = true;
+}
+
+void ProgressLine::finish() {
+  std::lock_guard lock(mutex_);
+  if (shown_) std::fprintf(stderr, "\r\033[K");
+  shown_ = false;
+}
+
 Scene load_timed(const std::string& spec, const LoadOptions& load, double& ms) {
   Timer t;
   Scene scene = load_scene(spec, load);
@@ -140,35 +165,6 @@ Scene load_timed(const std::string& spec, const LoadOptions& load, double& ms) {
 
 namespace {
 
-/// A progress line on stderr, only when stderr is a terminal and the work has taken > 1 s.
-class ProgressLine {
- public:
-  explicit ProgressLine(std::string label) : label_(std::move(label)), tty_(isatty(STDERR_FILENO) != 0) {}
-  ~ProgressLine() { finish(); }
-  void update(double fraction) {
-    if (!tty_) return;
-    std::lock_guard lock(mutex_);
-    if (timer_.ms() < 1000.0) return;
-    const int pct = static_cast<int>(std::clamp(fraction, 0.0, 1.0) * 100.0);
-    if (pct == last_) return;
-    last_ = pct;
-    std::fprintf(stderr, "\r%s %3d%%  (%.1f s)", label_.c_str(), pct, timer_.ms() / 1000.0);
-    std::fflush(stderr);
-    shown_ = true;
-  }
-  void finish() {
-    if (shown_) std::fprintf(stderr, "\r\033[K");
-    shown_ = false;
-  }
-
- private:
-  std::string label_;
-  bool tty_;
-  bool shown_ = false;
-  int last_ = -1;
-  Timer timer_;
-  std::mutex mutex_;
-};
 
 bool same_file(const std::filesystem::path& a, const std::filesystem::path& b) {
   std::error_code ec;

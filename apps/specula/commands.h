@@ -4,12 +4,14 @@
 
 #include <cstdio>
 #include <memory>
+#include <mutex>
 #include <string>
 #include <vector>
 
 #include "specula/accel.h"
 #include "specula/load.h"
 #include "specula/render.h"
+#include "specula/timer.h"
 #include "specula/voxel_scene.h"
 #include "specula/voxelize.h"
 
@@ -18,6 +20,27 @@ class App;
 }
 
 namespace specula::cli {
+
+/// A progress line on stderr ("LABEL  42%  (3.1 s)"), shown only when stderr is a terminal and
+/// the work has run for more than a second; finish() (or the destructor) clears it. update()
+/// may be called from any thread.
+class ProgressLine {
+ public:
+  explicit ProgressLine(std::string label);
+  ~ProgressLine();
+  ProgressLine(const ProgressLine&) = delete;
+  ProgressLine& operator=(const ProgressLine&) = delete;
+  void update(double fraction);
+  void finish();
+
+ private:
+  std::string label_;
+  bool tty_;
+  bool shown_ = false;
+  int last_ = -1;
+  Timer timer_;
+  std::mutex mutex_;
+};
 
 struct BenchTraceOptions {
   std::string scene = "pool";  ///< SCENE spec (built-in, json, gltf, mesh)

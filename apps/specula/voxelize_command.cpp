@@ -319,6 +319,8 @@ int voxelize(const VoxelizeCommandOptions& o) {
   VoxelSet set;
   SparseVoxelOctree svo;
   double best = std::numeric_limits<double>::infinity();
+  ProgressLine progress("voxelizing");
+  v.progress = [&progress](double f) { progress.update(f); };
   for (int rep = 0; rep < o.repeat; ++rep) {
     VoxelizeStats s;
     SvoInfo i;
@@ -333,6 +335,7 @@ int voxelize(const VoxelizeCommandOptions& o) {
     }
   }
 
+  progress.finish();  // before the summary lines
   // NOLINTNEXTLINE(bugprone-use-after-move): build(VoxelSet&&) takes only the attributes; grid and codes stay
   const VoxelGrid& g = set.grid;
   std::fprintf(info, "scene     %s: %s triangles (loaded in %.2f ms)%s\n",

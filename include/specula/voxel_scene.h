@@ -5,6 +5,7 @@
 #pragma once
 
 #include <cstdint>
+#include <functional>
 #include <memory>
 #include <string>
 
@@ -21,6 +22,8 @@ struct SceneVoxelOptions {
   /// The voxelizer's up-front memory limit (VoxelizeOptions::memory_limit): 0 = half the
   /// physical memory, UINT64_MAX = none.
   uint64_t memory_limit = 0;
+  /// The voxelizer's progress callback (VoxelizeOptions::progress); may be empty.
+  std::function<void(double)> progress;
 };
 
 struct SceneVoxelInfo {

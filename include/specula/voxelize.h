@@ -15,6 +15,7 @@
 #pragma once
 
 #include <cstdint>
+#include <functional>
 #include <optional>
 #include <span>
 #include <string>
@@ -89,6 +90,9 @@ struct VoxelizeOptions {
   /// Bounds the grid is built around; default: the bounding box of the triangles' vertices.
   /// Must contain every vertex. Pass Scene::bounds() to match other users of the scene's grid.
   std::optional<Aabb> bounds;
+  /// Called with the fraction of the work done (0..1], bricks counted, as each brick's voxels
+  /// join the result; from one thread at a time, so it need not be thread-safe. May be empty.
+  std::function<void(double)> progress;
 };
 
 struct VoxelizeStats {

@@ -17,6 +17,7 @@ std::unique_ptr<VoxelTracer> voxelize_scene(const Scene& scene, const SceneVoxel
   v.depth = options.depth;
   v.threads = options.threads;
   v.memory_limit = options.memory_limit;
+  v.progress = options.progress;
   v.bounds = scene.bounds();  // seed 000's grid around the whole scene
   VoxelizeStats stats;
   const VoxelSet set = voxelize(VoxelizeInput{scene.positions, scene.indices, attrs}, v, &stats);

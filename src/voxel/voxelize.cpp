@@ -1285,6 +1285,8 @@ VoxelSet voxelize(const VoxelizeInput& input, const VoxelizeOptions& options, Vo
         while (next) {
           result.codes.insert(result.codes.end(), next->codes.begin(), next->codes.end());
           if (options.attributes) result.attrs.insert(result.attrs.end(), next->attrs.begin(), next->attrs.end());
+          // `appended` changes only in the appending thread, which this is.
+          if (options.progress) options.progress(static_cast<double>(appended + 1) / static_cast<double>(nbricks));
           const std::lock_guard<std::mutex> lock(mu);
           spare.push_back(std::move(next));
           next.reset();
