@@ -103,7 +103,7 @@ PreparedScene prepare_scene(const std::string& spec, const LoadOptions& load, co
     v.threads = threads;
     SceneVoxelInfo info;
     ProgressLine progress("voxelizing");
-    v.progress = [&progress](double f) { progress.update(f); };
+    v.progress = progress.callback();
     out.tracer = voxelize_scene(scene, v, &info);
     progress.finish();
     out.build_ms = info.voxelize_ms + info.build_ms;
@@ -165,7 +165,6 @@ Scene load_timed(const std::string& spec, const LoadOptions& load, double& ms) {
 
 namespace {
 
-
 bool same_file(const std::filesystem::path& a, const std::filesystem::path& b) {
   std::error_code ec;
   return std::filesystem::exists(a, ec) && std::filesystem::exists(b, ec) &&
@@ -209,7 +208,7 @@ int render(const RenderOptions& options) {
   if (scene.sky.type == SkyType::Image) refuse_overwriting_inputs(outputs, {options.scene, scene.sky.image_path});
 
   ProgressLine progress("rendering");
-  ro.progress = [&progress](double f) { progress.update(f); };
+  ro.progress = progress.callback();
   std::vector<double> times;
   Film film;
   RenderStats stats;
@@ -344,8 +343,8 @@ int trace(const TraceOptions& options) {
                  with_thousands(scene.triangle_count()).c_str());
     print_build(options.accel.c_str(), build, stderr);  // the build line render prints
     std::fprintf(stderr, "trace    %9.3f ms  (%s ray%s, %d thread%s, median of %d pass%s)\n", ms,
-                 with_thousands(rays.size()).c_str(), rays.size() == 1 ? "" : "s", threads, threads == 1 ? "" : "s", options.repeat,
-                 options.repeat == 1 ? "" : "es");
+                 with_thousands(rays.size()).c_str(), rays.size() == 1 ? "" : "s", threads, threads == 1 ? "" : "s",
+                 options.repeat, options.repeat == 1 ? "" : "es");
     std::fprintf(stderr, "speed    %9.2f Mrays/s\n", static_cast<double>(rays.size()) / (std::max(ms, 1e-9) * 1e3));
   }
   return 0;

@@ -3,6 +3,7 @@
 #pragma once
 
 #include <cstdio>
+#include <functional>
 #include <memory>
 #include <mutex>
 #include <string>
@@ -32,6 +33,11 @@ class ProgressLine {
   ProgressLine& operator=(const ProgressLine&) = delete;
   void update(double fraction);
   void finish();
+  /// update() as the callback the library's progress options take (RenderOptions::progress,
+  /// VoxelizeOptions::progress); valid while this line lives.
+  std::function<void(double)> callback() {
+    return [this](double fraction) { update(fraction); };
+  }
 
  private:
   std::string label_;

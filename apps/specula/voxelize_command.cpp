@@ -320,7 +320,7 @@ int voxelize(const VoxelizeCommandOptions& o) {
   SparseVoxelOctree svo;
   double best = std::numeric_limits<double>::infinity();
   ProgressLine progress("voxelizing");
-  v.progress = [&progress](double f) { progress.update(f); };
+  v.progress = progress.callback();
   for (int rep = 0; rep < o.repeat; ++rep) {
     VoxelizeStats s;
     SvoInfo i;
