@@ -291,8 +291,18 @@ TEST_F(Cli, TonemapWithAnExrImageIsAWarning) {
 
 TEST_F(Cli, BadOptionsAreUsageErrors) {
   EXPECT_EQ(run_cli("render cornell --accel octree", dir_).exit_code, 2);
-  EXPECT_EQ(run_cli("render cornell --width 0", dir_).exit_code, 2);
   EXPECT_EQ(run_cli("render cornell --width 100000", dir_).exit_code, 2);
+  {  // CLI11's usage errors read like every other error and name the command's help
+    const RunResult u = run_cli("render cornell --width 0", dir_);
+    EXPECT_EQ(u.exit_code, 2);
+    EXPECT_NE(u.err.find("specula: error: --width: Value 0 not in range"), std::string::npos) << u.err;
+    EXPECT_NE(u.err.find("Run 'specula render --help' for the options."), std::string::npos) << u.err;
+    const RunResult b = run_cli("bench trace --no-such-flag", dir_);
+    EXPECT_EQ(b.exit_code, 2);
+    EXPECT_NE(b.err.find("specula: error: The following argument was not expected: --no-such-flag"), std::string::npos)
+        << b.err;
+    EXPECT_NE(b.err.find("Run 'specula bench trace --help'"), std::string::npos) << b.err;
+  }
   EXPECT_EQ(run_cli("render", dir_).exit_code, 2);
   EXPECT_EQ(run_cli("render cornell --no-such-flag", dir_).exit_code, 2);
   const RunResult r = run_cli("render cornell -o '" + (dir_ / "x.bmp").string() + "'", dir_);

@@ -217,6 +217,16 @@ static int run(int argc, char** argv) {
       "is installed) and frame rates. Run 'specula COMMAND --help'."};
   app.require_subcommand(1);
   app.set_version_flag("--version", "specula 0.1.0");
+  // Usage errors read like every other error ("specula: error: ...") and point at the help of
+  // the command that was given. Set before the commands are added, which inherit it.
+  app.failure_message([](const CLI::App* top, const CLI::Error& e) {
+    std::string command = "specula";
+    for (const CLI::App* a = top; !a->get_subcommands().empty();) {
+      a = a->get_subcommands().front();
+      command += " " + a->get_name();
+    }
+    return "specula: error: " + std::string(e.what()) + "\nRun '" + command + " --help' for the options.\n";
+  });
 
   // render
   cli::RenderOptions render;
