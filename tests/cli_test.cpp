@@ -73,6 +73,17 @@ TEST_F(Cli, HelpOnEverySubcommand) {
   EXPECT_EQ(bench.exit_code, 2);
   for (const char* sub : {"trace", "render", "svo"})
     EXPECT_NE(bench.err.find(std::string("\n  ") + sub + " "), std::string::npos) << sub << "\n" << bench.err;
+  // A mistyped command is named, with the commands there are.
+  const RunResult frob = run_cli("frob", dir_);
+  EXPECT_EQ(frob.exit_code, 2);
+  EXPECT_NE(frob.err.find("specula: error: 'frob' is not a command (render, trace, info, bench, voxelize)"),
+            std::string::npos)
+      << frob.err;
+  const RunResult tarce = run_cli("bench tarce", dir_);
+  EXPECT_EQ(tarce.exit_code, 2);
+  EXPECT_NE(tarce.err.find("specula: error: 'tarce' is not a bench command (trace, render, svo)"), std::string::npos)
+      << tarce.err;
+  EXPECT_NE(tarce.err.find("Run 'specula bench --help'"), std::string::npos) << tarce.err;
 }
 
 TEST_F(Cli, TracePrintsDistanceAndFileOrderPrimitive) {

@@ -23,6 +23,7 @@
 #include <filesystem>
 #include <iostream>
 #include <string>
+#include <string_view>
 #include <thread>
 
 #include "commands.h"
@@ -374,6 +375,22 @@ static int run(int argc, char** argv) {
                              : bench_cmd->parsed() && bench_cmd->get_subcommands().empty() ? bench_cmd
                                                                                             : nullptr;
       if (bare != nullptr) {
+        // A word where the command belongs ('specula frob', 'specula bench tarce') is named, with
+        // the commands there are; nothing at all gets the help that lists them.
+        int at = 1;
+        if (bare != &app) {
+          while (at < argc && std::string_view(argv[at]) != bare->get_name()) ++at;
+          ++at;
+        }
+        if (at < argc && argv[at][0] != '-') {
+          std::string names;
+          for (const CLI::App* sub : bare->get_subcommands({}))
+            names += (names.empty() ? "" : ", ") + sub->get_name();
+          const std::string path = bare == &app ? "specula" : "specula " + bare->get_name();
+          std::fprintf(stderr, "specula: error: '%s' is not a%s command (%s)\nRun '%s --help' for the options.\n",
+                       argv[at], bare == &app ? "" : (" " + bare->get_name()).c_str(), names.c_str(), path.c_str());
+          return 2;
+        }
         std::fputs(bare->help(bare == &app ? "" : app.get_name()).c_str(), stderr);
         return 2;
       }
