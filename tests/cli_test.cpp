@@ -516,6 +516,7 @@ TEST_F(Cli, BenchRenderAndBenchSvoPrintJson) {
   ASSERT_EQ(big["seed000_gpu_fps"].size(), 8u) << big.dump();
   EXPECT_TRUE(big["seed000_gpu_fps"][0].is_null());      // no water figure at depth 1
   EXPECT_EQ(big["seed000_gpu_fps"][2].get<double>(), 25.0);  // depth 3
+  EXPECT_EQ(big["seed000_gpu_fps"][6].get<double>(), 7.4);   // the seed's 7.4, not a float's 7.400000095
   EXPECT_NEAR(big["ratio_seed000_d3"].get<double>(), big["fps"].get<double>() / 25.0, 1e-9);
   EXPECT_FALSE(j["results"][1].contains("seed000_gpu_fps"));  // no seed figure at 16x12
 

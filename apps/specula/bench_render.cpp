@@ -82,15 +82,15 @@ std::vector<Size> parse_sizes(const std::string& list) {
 struct SeedRow {
   const char* camera;
   int width, height;
-  float fps[8];
+  double fps[8];
 };
 constexpr SeedRow kSeed000[] = {
-    {"water", 640, 480, {-1, -1, 25, 17, 13, 9.5f, 7.4f, 6}},
-    {"water", 1920, 1200, {-1, -1, 4, 2.7f, 2.0f, 1.5f, 1.21f, 1.18f}},
+    {"water", 640, 480, {-1, -1, 25, 17, 13, 9.5, 7.4, 6}},
+    {"water", 1920, 1200, {-1, -1, 4, 2.7, 2.0, 1.5, 1.21, 1.18}},
     {"bunny", 640, 480, {105, 105, 65, 60, 50, 45, 40, 35}},
-    {"bunny", 1920, 1200, {18, 17, 14, 11, 9.8f, 7.9f, 7.2f, 6.0f}},
+    {"bunny", 1920, 1200, {18, 17, 14, 11, 9.8, 7.9, 7.2, 6.0}},
     {"parallel", 640, 480, {-1, -1, 52, 47, 32, 23, 15, 10}},
-    {"parallel", 1920, 1200, {-1, -1, 11, 8, 5.5f, 3.8f, 2.61f, 1.94f}},
+    {"parallel", 1920, 1200, {-1, -1, 11, 8, 5.5, 3.8, 2.61, 1.94}},
 };
 
 std::optional<SeedRow> seed_row(const std::string& scene, const std::string& camera, const Size& size) {
@@ -101,16 +101,16 @@ std::optional<SeedRow> seed_row(const std::string& scene, const std::string& cam
 }
 
 /// The seed's fps at octree depth \p depth in \p row; negative when it gives none.
-float seed_fps_at(const std::optional<SeedRow>& row, int depth) {
-  return row && depth >= 1 && depth <= 8 ? row->fps[depth - 1] : -1.0f;
+double seed_fps_at(const std::optional<SeedRow>& row, int depth) {
+  return row && depth >= 1 && depth <= 8 ? row->fps[depth - 1] : -1.0;
 }
 
 std::string seed_cells(const SeedRow& r) {
   std::string s;
   char buf[16];
-  for (const float f : r.fps) {
+  for (const double f : r.fps) {
     if (f < 0) std::snprintf(buf, sizeof buf, "%6s", "-");
-    else std::snprintf(buf, sizeof buf, "%6.3g", static_cast<double>(f));
+    else std::snprintf(buf, sizeof buf, "%6.3g", f);
     s += buf;
   }
   return s;
@@ -119,7 +119,7 @@ std::string seed_cells(const SeedRow& r) {
 /// Seed 000's frame rates of \p row for depths 1..8 as JSON: null where the seed gives none.
 nlohmann::ordered_json seed_json(const SeedRow& row) {
   nlohmann::ordered_json a = nlohmann::ordered_json::array();
-  for (const float f : row.fps) a.push_back(f < 0 ? nlohmann::ordered_json() : nlohmann::ordered_json(static_cast<double>(f)));
+  for (const double f : row.fps) a.push_back(f < 0 ? nlohmann::ordered_json() : nlohmann::ordered_json(f));
   return a;
 }
 
@@ -300,10 +300,10 @@ int bench_svo(const BenchSvoOptions& options) {
             r["cpu_ms_per_frame"] = c.cpu_ms[setup][m];
             r["rays_per_pixel"] = c.rays_per_pixel[setup][m];
             r["psnr_db_vs_bvh"] = number_or_null(c.psnr[setup][m]);
-            const float seed = seed_fps_at(row, depths[di]);
+            const double seed = seed_fps_at(row, depths[di]);
             if (setup == kSeed && seed > 0) {
-              r["seed000_gpu_fps"] = static_cast<double>(seed);
-              r["ratio_seed000"] = c.fps[setup][m] / static_cast<double>(seed);
+              r["seed000_gpu_fps"] = seed;
+              r["ratio_seed000"] = c.fps[setup][m] / seed;
             }
             out.push_back(std::move(r));
           }
@@ -335,9 +335,9 @@ int bench_svo(const BenchSvoOptions& options) {
         char buf[48];
         std::snprintf(buf, sizeof buf, fmt, value(cells[vi][di]));
         if (with_seed) {
-          const float seed = seed_fps_at(row, depths[di]);
+          const double seed = seed_fps_at(row, depths[di]);
           char sb[16];
-          if (seed > 0) std::snprintf(sb, sizeof sb, "%.3g", static_cast<double>(seed));
+          if (seed > 0) std::snprintf(sb, sizeof sb, "%.3g", seed);
           else std::snprintf(sb, sizeof sb, "-");
           std::printf("  %7s/%-5s", buf, sb);
         } else {
@@ -420,8 +420,8 @@ int bench_render(const BenchRenderOptions& options) {
       const double rays = static_cast<double>(stats.total_rays());
       const auto row = seed_row(options.scene, camera, size);
       // Ours against the seed's depth-3 and depth-8 figures (the table's d3 and d8 columns).
-      const double ratio_d3 = row ? fps / static_cast<double>(row->fps[2]) : 0.0;
-      const double ratio_d8 = row ? fps / static_cast<double>(row->fps[7]) : 0.0;
+      const double ratio_d3 = row ? fps / row->fps[2] : 0.0;
+      const double ratio_d8 = row ? fps / row->fps[7] : 0.0;
       if (json) {
         nlohmann::ordered_json r;
         r["camera"] = camera;
