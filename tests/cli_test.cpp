@@ -86,6 +86,32 @@ TEST_F(Cli, HelpOnEverySubcommand) {
   EXPECT_NE(tarce.err.find("Run 'specula bench --help'"), std::string::npos) << tarce.err;
 }
 
+// A camera inside an occupied voxel sees little but that voxel (every primary ray hits it at
+// t = 0, as at coarse depths): render says so; a camera outside it, or a triangle render, not.
+TEST_F(Cli, CameraInsideAnOccupiedVoxelIsAWarning) {
+  write("quad.obj", kQuadObj);  // z = 0: the root cube is [-1, 1] x [-1, 1] x [0, 2]
+  const fs::path json = write("scene.json", R"({"meshes": [{"file": "quad.obj"}], "cameras": [
+      {"name": "in", "position": [0.5, 0.5, 0.5], "target": [0, 0, 0]},
+      {"name": "out", "position": [0, 0, 5], "target": [0, 0, 0]}]})");
+  const std::string args = " --width 8 --height 8 -o '" + (dir_ / "x.png").string() + "'";
+  const std::string warning = "warning: camera 'in' is inside an occupied voxel (depth 1)";
+  for (const char* accel : {"svo", "grid"}) {
+    RunResult r = run_cli("render '" + json.string() + "' --camera in --accel " + accel + " --depth 1" + args, dir_);
+    EXPECT_EQ(r.exit_code, 0) << r.err;
+    EXPECT_NE(r.err.find(warning), std::string::npos) << accel << "\n" << r.err;
+    r = run_cli("render '" + json.string() + "' --camera out --accel " + accel + " --depth 1" + args, dir_);
+    EXPECT_EQ(r.exit_code, 0) << r.err;
+    EXPECT_EQ(r.err.find("inside an occupied voxel"), std::string::npos) << accel << "\n" << r.err;
+  }
+  // Depth 3: the camera's voxel, [0.5, 0.75) on every axis, holds no part of the quad.
+  RunResult r = run_cli("render '" + json.string() + "' --camera in --accel svo --depth 3" + args, dir_);
+  EXPECT_EQ(r.exit_code, 0) << r.err;
+  EXPECT_EQ(r.err.find("inside an occupied voxel"), std::string::npos) << r.err;
+  r = run_cli("render '" + json.string() + "' --camera in" + args, dir_);
+  EXPECT_EQ(r.exit_code, 0) << r.err;
+  EXPECT_EQ(r.err.find("inside an occupied voxel"), std::string::npos) << r.err;
+}
+
 TEST_F(Cli, TracePrintsDistanceAndFileOrderPrimitive) {
   const fs::path obj = write("quad.obj", kQuadObj);
   // Ray 1 hits the lower-right triangle (prim 0), ray 2 the upper-left (prim 1), ray 3 misses.
@@ -536,6 +562,7 @@ TEST_F(Cli, BenchRenderAndBenchSvoPrintJson) {
       EXPECT_EQ(c["setup"], "seed000") << c.dump();
       EXPECT_EQ(c["seed000_gpu_fps"].get<double>(), c["depth"] == 3 ? 25.0 : 17.0) << c.dump();
     }
+    EXPECT_FALSE(c["camera_in_voxel"].get<bool>()) << c.dump();  // the water camera is above the pool
   }
   EXPECT_EQ(with_seed, 4);  // the seed's setup, both hit modes, both depths
 }

@@ -44,6 +44,16 @@ bool is_svo_file(const std::string& spec) {
   return ext == ".svo" || ext == ".SVO";
 }
 
+bool camera_in_voxel(const Tracer& tracer, const Camera& camera) {
+  if (dynamic_cast<const VoxelTracer*>(&tracer) == nullptr) return false;
+  // The ray towards the target stands for all primary rays: their origin is the camera, and
+  // whether a ray starting there hits at t = 0 does not depend on its direction.
+  const Ray ray{camera.position, 0.0f, camera.target - camera.position, kInf};
+  Hit hit;
+  tracer.intersect(std::span<const Ray>(&ray, 1), std::span<Hit>(&hit, 1));
+  return hit.hit() && hit.t == 0.0f;
+}
+
 namespace {
 
 /// Files the loaders do not read themselves (.svo octrees, ray files) get the same size limit.
@@ -206,6 +216,14 @@ int render(const RenderOptions& options) {
   const Scene& scene = prepared.scene;
   const auto& tracer = prepared.tracer;
   if (scene.sky.type == SkyType::Image) refuse_overwriting_inputs(outputs, {options.scene, scene.sky.image_path});
+  if (const Camera& camera = select_camera(scene, ro.camera); camera_in_voxel(*tracer, camera)) {
+    const auto* svo = dynamic_cast<const SparseVoxelOctree*>(tracer.get());
+    const int depth = svo != nullptr && svo->lod() > 0 ? svo->lod() : dynamic_cast<const VoxelTracer&>(*tracer).grid().depth;
+    std::fprintf(stderr,
+                 "warning: camera '%s' is inside an occupied voxel (depth %d): every primary ray hits it at t = 0 "
+                 "and the image shows little else; a finer voxel depth or another camera shows the scene\n",
+                 camera.name.c_str(), depth);
+  }
 
   ProgressLine progress("rendering");
   ro.progress = progress.callback();

@@ -188,5 +188,10 @@ bool is_svo_file(const std::string& spec);
 /// Throws for an .svo file given to \p command, which needs triangles, naming the commands
 /// that read octree files (render, info).
 void refuse_octree_input(const std::string& spec, const std::string& command);
+/// Whether \p camera sits in an occupied voxel of \p tracer (a voxel tracer; false for any
+/// other) so that every primary ray hits that voxel at t = 0, as at coarse depths: a ray that
+/// starts inside a voxel hits it there (in contour mode when the camera is inside its slab,
+/// and then every ray does), and the image shows little but that voxel.
+bool camera_in_voxel(const Tracer& tracer, const Camera& camera);
 
 }  // namespace specula::cli
