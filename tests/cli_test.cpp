@@ -110,6 +110,17 @@ TEST_F(Cli, CameraInsideAnOccupiedVoxelIsAWarning) {
   r = run_cli("render '" + json.string() + "' --camera in" + args, dir_);
   EXPECT_EQ(r.exit_code, 0) << r.err;
   EXPECT_EQ(r.err.find("inside an occupied voxel"), std::string::npos) << r.err;
+  // bench render names such cameras after its table, and in its JSON.
+  r = run_cli("bench render --scene '" + json.string() + "' --accel svo --depth 1 --sizes 8x8 --frames 1", dir_);
+  EXPECT_EQ(r.exit_code, 0) << r.err;
+  EXPECT_NE(r.out.find("not the view): in\n"), std::string::npos) << r.out;
+  r = run_cli("bench render --scene '" + json.string() + "' --accel svo --depth 1 --sizes 8x8 --frames 1 --json", dir_);
+  ASSERT_EQ(r.exit_code, 0) << r.err;
+  nlohmann::json j;
+  ASSERT_NO_THROW(j = nlohmann::json::parse(r.out)) << r.out;
+  ASSERT_EQ(j["results"].size(), 2u) << r.out;
+  EXPECT_TRUE(j["results"][0]["camera_in_voxel"].get<bool>()) << r.out;
+  EXPECT_FALSE(j["results"][1]["camera_in_voxel"].get<bool>()) << r.out;
 }
 
 TEST_F(Cli, TracePrintsDistanceAndFileOrderPrimitive) {
