@@ -164,6 +164,16 @@ double psnr(const Film& a, const Film& b) {
   return mse > 0.0 ? 10.0 * std::log10(1.0 / mse) : std::numeric_limits<double>::infinity();
 }
 
+/// The note after a table with measurements whose camera sits in an occupied voxel (\p list
+/// names them; nothing when empty): those time the secondary rays from that voxel, not a view.
+void print_camera_in_voxel_note(const std::string& list) {
+  if (list.empty()) return;
+  std::printf("\ncamera inside an occupied voxel (every primary ray hits it at t = 0 with cubes, and with\n"
+              "contours when the camera is inside its slab; such a measurement times the secondary rays\n"
+              "from that voxel, not the view): %s\n",
+              list.c_str());
+}
+
 std::vector<int> parse_depths(const std::string& list) {
   std::vector<int> depths;
   const std::vector<std::string> text = split_list(list);
@@ -372,11 +382,7 @@ int bench_svo(const BenchSvoOptions& options) {
         if (cells[vi][di].camera_in_voxel) ds += (n++ == 0 ? "" : ", ") + std::to_string(depths[di]);
       if (n > 0) list += (list.empty() ? "" : "; ") + views[vi].camera + (n == 1 ? " at depth " : " at depths ") + ds;
     }
-    if (!list.empty())
-      std::printf("\ncamera inside an occupied voxel (every primary ray hits it at t = 0 with cubes, and with\n"
-                  "contours when the camera is inside its slab; such a cell times the secondary rays from that\n"
-                  "voxel, not the view): %s\n",
-                  list.c_str());
+    print_camera_in_voxel_note(list);
   }
   print_table("CPU ms per frame (all threads), seed 000's setup, voxel cubes: the work behind the fps above, which "
               "on a shared machine also depends on the other load",
@@ -414,6 +420,7 @@ int bench_render(const BenchRenderOptions& options) {
     for (const Camera& c : scene.cameras) cameras.push_back(c.name);
   const bool voxels = options.accel == "svo" || options.accel == "grid";
   const auto* file_svo = dynamic_cast<const SparseVoxelOctree*>(tracer.get());
+  const bool traced_voxels = dynamic_cast<const VoxelTracer*>(tracer.get()) != nullptr;  // --accel or an .svo file
   const std::string accel =
       is_svo_file(options.scene) && file_svo != nullptr
           ? "svo depth " + std::to_string(file_svo->grid().depth) + " " + to_string(file_svo->hit_mode()) + " (file)"
@@ -458,7 +465,7 @@ int bench_render(const BenchRenderOptions& options) {
         r["secondary_rays"] = stats.secondary_rays;
         r["shadow_rays"] = stats.shadow_rays;
         r["mrays_per_s"] = rays / (t * 1e3);
-        if (voxels || file_svo != nullptr) r["camera_in_voxel"] = in_voxel;
+        if (traced_voxels) r["camera_in_voxel"] = in_voxel;
         if (row) {
           r["seed000_gpu_fps"] = seed_json(*row);
           r["ratio_seed000_d3"] = ratio_d3;
@@ -495,14 +502,11 @@ int bench_render(const BenchRenderOptions& options) {
     std::printf("%s\n", j.dump(2).c_str());
     return 0;
   }
-  if (!inside.empty())
-    std::printf("\ncamera inside an occupied voxel (every primary ray hits it at t = 0; the row times the\n"
-                "secondary rays from that voxel, not the view): %s\n",
-                inside.c_str());
+  print_camera_in_voxel_note(inside);
   if (pool)
     std::printf("\n(seed 000: AMD Radeon HD 6900, its sparse voxel octree at depths 1-8; ours traces %s. ratio > "
                 "1: we are faster)\n",
-                voxels || file_svo != nullptr ? accel.c_str() : "the full-resolution triangles");
+                traced_voxels ? accel.c_str() : "the full-resolution triangles");
   return 0;
 }
 
