@@ -780,9 +780,9 @@ TEST_F(Cli, MaxGridMemoryFlag) {
   const fs::path obj = write("quad.obj", kQuadObj);
   const std::string base = "render '" + obj.string() + "' --accel grid --depth 6 --width 8 --height 6 -o '" +
                            (dir_ / "g.png").string() + "'";
-  const RunResult low = run_cli(base + " --max-grid-memory 1KiB", dir_);  // depth 6: 32 KiB of bits
+  const RunResult low = run_cli(base + " --max-grid-memory 1KiB", dir_);  // depth 6: 512 bricks of 4 bytes
   EXPECT_EQ(low.exit_code, 1);
-  EXPECT_NE(low.err.find("--accel grid --depth 6: the dense voxel bitmask needs 32 KiB, over the limit of 1 KiB "
+  EXPECT_NE(low.err.find("--accel grid --depth 6: the voxel grid's brick table needs 2 KiB, over the limit of 1 KiB "
                          "(--max-grid-memory raises it"),
             std::string::npos)
       << low.err;

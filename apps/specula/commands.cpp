@@ -95,9 +95,9 @@ PreparedScene prepare_scene(const std::string& spec, const LoadOptions& load, co
     throw Error("--lod " + std::to_string(voxel_options.tracer.lod) + " is deeper than the octree (--depth " +
                 std::to_string(voxel_options.depth) + "): use 1.." + std::to_string(voxel_options.depth) +
                 ", or 0 for full depth");
-  if (accel == "grid" && VoxelGridTracer::bitmask_bytes(voxel_options.depth) > voxel_options.tracer.max_grid_bytes)
-    throw Error("--accel grid --depth " + std::to_string(voxel_options.depth) + ": the dense voxel bitmask needs " +
-                format_bytes(VoxelGridTracer::bitmask_bytes(voxel_options.depth)) + ", over the limit of " +
+  if (accel == "grid" && VoxelGridTracer::table_bytes(voxel_options.depth) > voxel_options.tracer.max_grid_bytes)
+    throw Error("--accel grid --depth " + std::to_string(voxel_options.depth) + ": the voxel grid's brick table needs " +
+                format_bytes(VoxelGridTracer::table_bytes(voxel_options.depth)) + ", over the limit of " +
                 format_bytes(voxel_options.tracer.max_grid_bytes, true) +
                 " (--max-grid-memory raises it; --accel svo stores only the occupied voxels)");
   out.scene = load_timed(spec, load, out.load_ms);

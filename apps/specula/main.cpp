@@ -189,7 +189,7 @@ void add_integrator_options(CLI::App* app, std::string& accel, specula::RenderOp
       ->check(CLI::IsMember({"cubes", "contours"}))
       ->default_str("cubes");
   add_size_option(app, "--max-grid-memory", voxel.tracer.max_grid_bytes,
-                  "--accel grid: refuse a dense voxel bitmask larger than this (depth 11 takes 1 GiB)");
+                  "--accel grid: refuse a voxel grid larger than this (its brick table alone takes 64 MiB at depth 11, 512 MiB at depth 12)");
   add_memory_limit_option(app, voxel.memory_limit, "--accel svo|grid: ");
   app->add_option("--lod", voxel.tracer.lod, "octree level of detail: trace nodes at this depth as leaves (0 = full depth)")
       ->check(CLI::Range(0, kMaxVoxelDepth))

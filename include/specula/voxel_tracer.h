@@ -60,7 +60,8 @@ struct VoxelTracerOptions {
   /// Build threads (octree attribute averaging); 0 = all hardware threads. Queries are
   /// single-threaded per call: callers parallelise over batches.
   int threads = 0;
-  /// Largest dense bitmask the voxel grid may allocate (1 bit per voxel); depth 11 = 1 GiB.
+  /// Most bytes the voxel grid may take: its brick table (4 bytes per 8^3 voxels, 512 MiB at
+  /// depth 12) and 68 bytes per occupied brick (VoxelGridTracer::table_bytes).
   size_t max_grid_bytes = size_t{1} << 30;
 };
 

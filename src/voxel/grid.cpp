@@ -1,12 +1,14 @@
-// Dense voxel grid with Amanatides-Woo DDA traversal (owner: voxel tracers).
+// Brick voxel grid with Amanatides-Woo DDA traversal (owner: voxel tracers).
 //
 // Entry (seed 001, section 3.5): the ray is clipped to the grid's box first. The start cell is
 // estimated from the entry point and then corrected against the exact plane distances, so that
 // on every axis entry <= t_start < exit holds with the same numbers the kernel uses (the
 // seed's "random misses" came from trusting floor(o + t d) alone). Stepping (section 3.4)
 // recomputes each next boundary directly from its integer plane instead of accumulating a
-// t-delta, which keeps the distances bit-identical to the octree's.
+// t-delta, which keeps the distances bit-identical to the octree's. An empty 8^3 brick is
+// crossed in one step (GridTraversal::walk).
 #include <algorithm>
+#include <bit>
 #include <cmath>
 #include <cstdint>
 #include <cstdio>
@@ -22,48 +24,97 @@ namespace specula {
 using voxel::CellHit;
 using voxel::LocalRay;
 
-uint64_t VoxelGridTracer::bitmask_bytes(int depth) {
-  const uint64_t bits = uint64_t{1} << (3 * std::clamp(depth, 0, kMaxVoxelDepth));
-  return (bits + 63) / 64 * 8;
+namespace {
+
+constexpr int kBrickShift = 3;  ///< bricks of 8^3 voxels: 512 occupancy bits, one cache line
+
+uint32_t bricks_per_axis(int depth) { return depth > kBrickShift ? 1u << (depth - kBrickShift) : 1u; }
+
+/// Bit of voxel (x, y, z) in its brick: the low 9 bits of its Morton code (bit i of each
+/// coordinate's low three goes to bit 3i + axis), so a brick's voxels in bit order are in the
+/// codes' order and a popcount ranks them.
+constexpr uint32_t spread_brick(uint32_t v) { return (v & 1u) | (v & 2u) << 2 | (v & 4u) << 4; }
+constexpr uint32_t brick_bit(uint32_t x, uint32_t y, uint32_t z) {
+  return spread_brick(x & 7u) | spread_brick(y & 7u) << 1 | spread_brick(z & 7u) << 2;
+}
+static_assert(brick_bit(5, 3, 6) == (morton_encode(5, 3, 6) & 511u), "brick bits follow the Morton order");
+
+}  // namespace
+
+uint64_t VoxelGridTracer::table_bytes(int depth) {
+  const uint64_t n = bricks_per_axis(std::clamp(depth, 0, kMaxVoxelDepth));
+  return n * n * n * sizeof(uint32_t);
 }
 
 VoxelGridTracer VoxelGridTracer::build(const VoxelSet& set, const VoxelTracerOptions& options) {
   voxel::validate_set(set, "grid");
-  const uint64_t bytes = bitmask_bytes(set.grid.depth);
+  const int depth = set.grid.depth;
+  // Codes are sorted, and a code's bits above the low 9 are its brick's Morton code: the voxels
+  // of a brick are consecutive, and the bricks come in Morton order.
+  uint64_t bricks = 0;
+  for (size_t i = 0; i < set.codes.size(); ++i) bricks += i == 0 || (set.codes[i] >> 9) != (set.codes[i - 1] >> 9);
+  const uint64_t bytes = table_bytes(depth) + bricks * (sizeof(Brick) + sizeof(uint32_t));
   if (bytes > options.max_grid_bytes) {
-    char msg[320];
+    char msg[360];
     std::snprintf(msg, sizeof msg,
-                  "grid: a dense bitmask at depth %d (%u^3 voxels) needs %.2f GiB, over the limit of %.2f GiB "
-                  "(VoxelTracerOptions::max_grid_bytes); use the SVO or a smaller depth",
-                  set.grid.depth, set.grid.resolution(), static_cast<double>(bytes) / 1073741824.0,
+                  "grid: a voxel grid at depth %d (%u^3 voxels; a table of %.0f bricks of 8^3, %llu occupied) needs "
+                  "%.2f GiB, over the limit of %.2f GiB (VoxelTracerOptions::max_grid_bytes); use the SVO or a "
+                  "smaller depth",
+                  depth, set.grid.resolution(), static_cast<double>(table_bytes(depth) / sizeof(uint32_t)),
+                  static_cast<unsigned long long>(bricks), static_cast<double>(bytes) / 1073741824.0,
                   static_cast<double>(options.max_grid_bytes) / 1073741824.0);
     throw Error(msg);
   }
   VoxelGridTracer g;
   g.grid_ = set.grid;
   g.mode_ = options.mode;
-  g.bits_.assign(bytes / 8, 0);
-  const uint64_t res = set.grid.resolution();
-  for (const uint64_t code : set.codes) {
+  const uint64_t n = bricks_per_axis(depth);
+  g.bricks_per_axis_ = static_cast<uint32_t>(n);
+  g.table_.assign(n * n * n, kEmptyBrick);
+  g.bricks_.assign(bricks, Brick{});
+  g.first_.assign(bricks, 0);
+  uint32_t slot = kEmptyBrick;
+  for (size_t i = 0; i < set.codes.size(); ++i) {
     uint32_t x, y, z;
-    morton_decode(code, x, y, z);
-    const uint64_t bit = x + res * (y + res * z);
-    g.bits_[bit >> 6] |= uint64_t{1} << (bit & 63);
+    morton_decode(set.codes[i], x, y, z);
+    if (i == 0 || (set.codes[i] >> 9) != (set.codes[i - 1] >> 9)) {
+      ++slot;
+      g.table_[(x >> kBrickShift) + n * ((y >> kBrickShift) + n * (z >> kBrickShift))] = slot;
+      g.first_[slot] = static_cast<uint32_t>(i);
+    }
+    const uint32_t b = brick_bit(x, y, z);
+    g.bricks_[slot].bits[b >> 6] |= uint64_t{1} << (b & 63u);
   }
-  g.codes_ = set.codes;
+  for (int shift = 2 * kBrickShift; depth - shift >= 1; shift += kBrickShift) {
+    Level level{shift, uint64_t{1} << (depth - shift), {}};
+    level.bits.assign((level.per_axis * level.per_axis * level.per_axis + 63) / 64, 0);
+    for (const uint64_t code : set.codes) {
+      uint32_t x, y, z;
+      morton_decode(code, x, y, z);
+      const uint64_t k = (x >> shift) + level.per_axis * ((y >> shift) + level.per_axis * (z >> shift));
+      level.bits[k >> 6] |= uint64_t{1} << (k & 63u);
+    }
+    g.levels_.insert(g.levels_.begin(), std::move(level));
+  }
   g.attrs_ = voxel::attributes_or_default(set);
   return g;
 }
 
 bool VoxelGridTracer::occupied(uint32_t x, uint32_t y, uint32_t z) const {
   const uint64_t res = grid_.resolution();
-  if (x >= res || y >= res || z >= res || bits_.empty()) return false;
-  const uint64_t bit = x + res * (y + res * z);
-  return (bits_[bit >> 6] >> (bit & 63)) & 1u;
+  if (x >= res || y >= res || z >= res || table_.empty()) return false;
+  const uint64_t n = bricks_per_axis_;
+  const uint32_t slot = table_[(x >> kBrickShift) + n * ((y >> kBrickShift) + n * (z >> kBrickShift))];
+  if (slot == kEmptyBrick) return false;
+  const uint32_t b = brick_bit(x, y, z);
+  return (bricks_[slot].bits[b >> 6] >> (b & 63u)) & 1u;
 }
 
 size_t VoxelGridTracer::memory_bytes() const {
-  return bits_.size() * sizeof(uint64_t) + codes_.size() * sizeof(uint64_t) + attrs_.size() * sizeof(VoxelAttributes);
+  size_t bytes = table_.size() * sizeof(uint32_t) + bricks_.size() * sizeof(Brick) + first_.size() * sizeof(uint32_t) +
+                 attrs_.size() * sizeof(VoxelAttributes);
+  for (const Level& level : levels_) bytes += level.bits.size() * sizeof(uint64_t);
+  return bytes;
 }
 
 const VoxelAttributes& VoxelGridTracer::attributes(uint32_t prim) const {
@@ -80,7 +131,7 @@ class GridTraversal {
   static void walk(const VoxelGridTracer& g, const Ray& ray, TraceStats& stats, Leaf&& leaf) {
     if constexpr (kStats) ++stats.rays;
     LocalRay r;
-    if (g.codes_.empty() || !voxel::make_local_ray(ray, g.grid_, r)) return;
+    if (g.attrs_.empty() || !voxel::make_local_ray(ray, g.grid_, r)) return;
     const uint32_t res = g.grid_.resolution();
     const float fres = static_cast<float>(res);
     const auto plane_t = [&r](uint32_t plane, int i) { return (static_cast<float>(plane) - r.o[i]) * r.inv[i]; };
@@ -127,19 +178,81 @@ class GridTraversal {
       c[i] = ci;
     }
 
-    const uint64_t* bits = g.bits_.data();
-    const uint64_t res64 = res;
+    // Continues from where the ray leaves the empty block of 2^shift voxels per side around its
+    // cell: the nearest of the block's exit planes (exact distances, like every boundary), in
+    // the cell the one-voxel walk would reach there. The cells it skips are empty, or touched
+    // only at that distance (zero length: never reported), so nothing changes. False: the ray
+    // ends (tmax) or leaves the grid in the block.
+    const auto leave_block = [&](int shift) {
+      float texit = kInf;
+      for (int i = 0; i < 3; ++i) {
+        if ((r.fixed >> i) & 1u) continue;
+        const uint32_t plane = (r.mirror >> i) & 1u ? c[i] >> shift << shift : std::min(((c[i] >> shift) + 1) << shift, res);
+        texit = std::min(texit, plane_t(plane, i));
+      }
+      if (texit >= r.tmax) return false;
+      // Each axis whose next boundary is within texit moves to the cell with entry <= texit <
+      // exit: estimated from o + texit d, then corrected against the exact planes (the cell
+      // the one-step loop would stop in, even where rounding makes neighbouring planes equal).
+      for (int i = 0; i < 3; ++i) {
+        if ((r.fixed >> i) & 1u || tnext[i] > texit) continue;
+        const float est = r.o[i] + texit * r.d[i];
+        uint32_t ci;
+        if ((r.mirror >> i) & 1u) {
+          if (plane_t(0u, i) <= texit) return false;  // leaves the grid
+          // tnext = plane_t(c) <= texit: the cell is below c.
+          ci = est <= 0.0f ? 0u : est >= static_cast<float>(c[i] - 1) ? c[i] - 1 : static_cast<uint32_t>(est);
+          while (ci + 1 < c[i] && plane_t(ci + 1, i) > texit) ++ci;
+          while (ci > 0 && plane_t(ci, i) <= texit) --ci;
+          tprev[i] = plane_t(ci + 1, i);
+          tnext[i] = plane_t(ci, i);
+        } else {
+          if (plane_t(res, i) <= texit) return false;
+          ci = est >= static_cast<float>(res - 1) ? res - 1
+               : est <= static_cast<float>(c[i] + 1) ? c[i] + 1
+                                                      : static_cast<uint32_t>(est);
+          while (ci > c[i] + 1 && plane_t(ci, i) > texit) --ci;
+          while (ci + 1 < res && plane_t(ci + 1, i) <= texit) ++ci;
+          tprev[i] = plane_t(ci, i);
+          tnext[i] = plane_t(ci + 1, i);
+        }
+        c[i] = ci;
+      }
+      return true;
+    };
+
+    const uint32_t* table = g.table_.data();
+    const VoxelGridTracer::Brick* bricks = g.bricks_.data();
+    const uint64_t n = g.bricks_per_axis_;
     for (;;) {
       if constexpr (kStats) ++stats.nodes_visited;
-      const uint64_t bit = c[0] + res64 * (c[1] + res64 * c[2]);
-      if ((bits[bit >> 6] >> (bit & 63)) & 1u) {
+      // The largest empty block around the cell, coarsest level first.
+      int empty = 0;
+      for (const VoxelGridTracer::Level& level : g.levels_) {
+        const uint64_t k = (c[0] >> level.shift) + level.per_axis * ((c[1] >> level.shift) + level.per_axis * (c[2] >> level.shift));
+        if (!((level.bits[k >> 6] >> (k & 63u)) & 1u)) {
+          empty = level.shift;
+          break;
+        }
+      }
+      const uint32_t slot =
+          empty != 0 ? VoxelGridTracer::kEmptyBrick
+                     : table[(c[0] >> kBrickShift) + n * ((c[1] >> kBrickShift) + n * (c[2] >> kBrickShift))];
+      if (slot == VoxelGridTracer::kEmptyBrick) {
+        if (!leave_block(empty != 0 ? empty : kBrickShift)) return;
+        continue;
+      }
+      const uint32_t b = brick_bit(c[0], c[1], c[2]);
+      const uint64_t* bits = bricks[slot].bits;
+      if ((bits[b >> 6] >> (b & 63u)) & 1u) {
         const float te = std::max(std::max(tprev[0], tprev[1]), std::max(tprev[2], r.tmin));
         const float tx = std::min(std::min(tnext[0], tnext[1]), std::min(tnext[2], r.tmax));
         if (te < tx) {
           if constexpr (kStats) ++stats.triangles_tested;
-          const uint64_t code = morton_encode(c[0], c[1], c[2]);
-          const auto it = std::lower_bound(g.codes_.begin(), g.codes_.end(), code);
-          const uint32_t index = static_cast<uint32_t>(it - g.codes_.begin());
+          // Attribute index: the brick's first voxel's, plus the voxels before this one in it.
+          uint32_t index = g.first_[slot];
+          for (uint32_t w = 0; w < (b >> 6); ++w) index += static_cast<uint32_t>(std::popcount(bits[w]));
+          index += static_cast<uint32_t>(std::popcount(bits[b >> 6] & ((uint64_t{1} << (b & 63u)) - 1)));
           if (leaf(r, c, g.attrs_[index], index)) return;
         }
       }
