@@ -27,6 +27,7 @@ using voxel::LocalRay;
 namespace {
 
 constexpr int kBrickShift = 3;  ///< bricks of 8^3 voxels: 512 occupancy bits, one cache line
+constexpr uint32_t kBrickMask = (1u << kBrickShift) - 1;
 
 uint32_t bricks_per_axis(int depth) { return depth > kBrickShift ? 1u << (depth - kBrickShift) : 1u; }
 
@@ -224,23 +225,27 @@ class GridTraversal {
     const uint32_t* table = g.table_.data();
     const VoxelGridTracer::Brick* bricks = g.bricks_.data();
     const uint64_t n = g.bricks_per_axis_;
+    uint32_t slot = VoxelGridTracer::kEmptyBrick;  // the occupied brick of the cell, once looked up
+    bool new_brick = true;
     for (;;) {
       if constexpr (kStats) ++stats.nodes_visited;
-      // The largest empty block around the cell, coarsest level first.
-      int empty = 0;
-      for (const VoxelGridTracer::Level& level : g.levels_) {
-        const uint64_t k = (c[0] >> level.shift) + level.per_axis * ((c[1] >> level.shift) + level.per_axis * (c[2] >> level.shift));
-        if (!((level.bits[k >> 6] >> (k & 63u)) & 1u)) {
-          empty = level.shift;
-          break;
+      if (new_brick) {
+        // The largest empty block around the cell, coarsest level first.
+        int empty = 0;
+        for (const VoxelGridTracer::Level& level : g.levels_) {
+          const uint64_t k = (c[0] >> level.shift) + level.per_axis * ((c[1] >> level.shift) + level.per_axis * (c[2] >> level.shift));
+          if (!((level.bits[k >> 6] >> (k & 63u)) & 1u)) {
+            empty = level.shift;
+            break;
+          }
         }
-      }
-      const uint32_t slot =
-          empty != 0 ? VoxelGridTracer::kEmptyBrick
-                     : table[(c[0] >> kBrickShift) + n * ((c[1] >> kBrickShift) + n * (c[2] >> kBrickShift))];
-      if (slot == VoxelGridTracer::kEmptyBrick) {
-        if (!leave_block(empty != 0 ? empty : kBrickShift)) return;
-        continue;
+        slot = empty != 0 ? VoxelGridTracer::kEmptyBrick
+                          : table[(c[0] >> kBrickShift) + n * ((c[1] >> kBrickShift) + n * (c[2] >> kBrickShift))];
+        if (slot == VoxelGridTracer::kEmptyBrick) {
+          if (!leave_block(empty != 0 ? empty : kBrickShift)) return;
+          continue;
+        }
+        new_brick = false;
       }
       const uint32_t b = brick_bit(c[0], c[1], c[2]);
       const uint64_t* bits = bricks[slot].bits;
@@ -264,11 +269,13 @@ class GridTraversal {
         --c[k];
         tprev[k] = tnext[k];
         tnext[k] = plane_t(c[k], k);
+        new_brick = (c[k] & kBrickMask) == kBrickMask;
       } else {
         if (c[k] + 1 >= res) return;
         ++c[k];
         tprev[k] = tnext[k];
         tnext[k] = plane_t(c[k] + 1, k);
+        new_brick = (c[k] & kBrickMask) == 0;
       }
     }
   }
