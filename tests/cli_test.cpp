@@ -228,8 +228,30 @@ TEST_F(Cli, OutputAndOptionMistakesFailBeforeTheLoad) {
                "--format xyz with -o");
   expect_early("voxelize " + missing + " --depth 4 --no-attributes -o '" + (dir_ / "v.svo").string() + "'",
                "--no-attributes with -o");
+  expect_early("voxelize " + missing + " --depth 4 -o '" + (dir_ / "v.txt").string() + "'",
+               "v.txt: unsupported voxel output '.txt' (supported: .xyz, .svo)");
+  expect_early("voxelize " + missing + " --depth 4 --format xyz -o '" + (dir_ / "voxels").string() + "'",
+               "voxels: the output's extension chooses its format, and it has none: name it FILE.xyz");
   expect_early("render " + missing + " --accel svo --depth 6 --lod 9", "--lod 9 is deeper than the octree (--depth 6)");
   expect_early("render " + missing + " --accel grid --lod 2", "--lod needs --accel svo");
+}
+
+// An error comes after the lines the command printed before it, also in a log of both streams
+// (the standard output is buffered when it is not a terminal).
+TEST_F(Cli, ErrorsFollowTheOutputThatPrecededThem) {
+  const fs::path obj = write("quad.obj", kQuadObj);
+  const fs::path log = dir_ / "both.txt";
+  const std::string cmd = std::string("'") + SPECULA_CLI_PATH + "' render '" + obj.string() +
+                          "' --camera nope -o '" + (dir_ / "x.png").string() + "' >'" + log.string() +
+                          "' 2>&1 </dev/null";
+  const int status = std::system(cmd.c_str());
+  ASSERT_TRUE(WIFEXITED(status));
+  EXPECT_EQ(WEXITSTATUS(status), 1);
+  const std::string text = slurp(log);
+  const size_t load = text.find("load "), error = text.find("specula: error: unknown camera 'nope'");
+  ASSERT_NE(load, std::string::npos) << text;
+  ASSERT_NE(error, std::string::npos) << text;
+  EXPECT_LT(load, error) << text;
 }
 
 // A mesh folder that does not exist is said so, not skipped in favour of the next one.

@@ -209,6 +209,14 @@ void add_integrator_options(CLI::App* app, std::string& accel, specula::RenderOp
 
 }  // namespace
 
+/// Prints "specula: error: MESSAGE" after what the command printed so far: the standard output
+/// is flushed first, so a log of both streams (2>&1 into a file or a pipe, where the standard
+/// output is buffered) shows the error after the lines that preceded it, not before them.
+static void report_error(const char* message) {
+  std::fflush(stdout);
+  std::fprintf(stderr, "specula: error: %s\n", message);
+}
+
 /// The whole program but the signal set-up; main() catches what building the options may throw.
 static int run(int argc, char** argv) {
   CLI::App app{
@@ -423,13 +431,13 @@ static int run(int argc, char** argv) {
     else if (bench_svo_cmd->parsed()) rc = cli::bench_svo(bench_svo);
     else if (voxelize_cmd->parsed()) rc = cli::voxelize(voxelize);
   } catch (const specula::Error& e) {
-    std::fprintf(stderr, "specula: error: %s\n", e.what());
+    report_error(e.what());
     rc = 1;
   } catch (const std::bad_alloc&) {
-    std::fprintf(stderr, "specula: error: out of memory\n");
+    report_error("out of memory");
     rc = 1;
   } catch (const std::exception& e) {
-    std::fprintf(stderr, "specula: error: %s\n", e.what());
+    report_error(e.what());
     rc = 1;
   }
   // Results go to the standard output (trace hits, voxelize --format xyz, bench --json): a write

@@ -66,6 +66,14 @@ std::string xyz_text(const VoxelSet& set) {
   return out;
 }
 
+/// The refusal of voxel output \p path, whose extension \p ext is neither .xyz nor .svo.
+Error unsupported_output(const std::string& path, const std::string& ext) {
+  if (ext.empty())
+    return Error(path + ": the output's extension chooses its format, and it has none: name it FILE.xyz (voxel "
+                 "coordinates) or FILE.svo (the octree)");
+  return Error(path + ": unsupported voxel output '" + ext + "' (supported: .xyz, .svo)");
+}
+
 /// Writes \p set to \p path, the format chosen by the extension: .xyz (voxel coordinates as
 /// text) or .svo (the sparse voxel octree with its attributes, see docs/svo-format.md).
 void write_voxels(const std::string& path, const VoxelSet& set, const SparseVoxelOctree* built,
@@ -82,7 +90,7 @@ void write_voxels(const std::string& path, const VoxelSet& set, const SparseVoxe
     write_file_atomic(path, svo_to_bytes(*built), protect);
     return;
   }
-  throw Error(path + ": unsupported voxel output '" + ext + "' (supported: .xyz, .svo)");
+  throw unsupported_output(path, ext);
 }
 
 struct Loaded {
@@ -293,8 +301,7 @@ int voxelize(const VoxelizeCommandOptions& o) {
   if (o.depth < 1) throw Error("voxelize: --depth D is required (1.." + std::to_string(kMaxVoxelDepth) + ")");
   if (!o.output.empty()) {
     const std::string ext = std::filesystem::path(o.output).extension().string();
-    if (ext != ".xyz" && ext != ".svo")
-      throw Error(o.output + ": unsupported voxel output '" + ext + "' (supported: .xyz, .svo)");
+    if (ext != ".xyz" && ext != ".svo") throw unsupported_output(o.output, ext);
     if (o.format == "xyz" && ext != ".xyz")
       throw Error("--format xyz with -o " + o.output + ": the file's extension chooses its format (" + ext +
                   "); name it .xyz, or drop --format");
