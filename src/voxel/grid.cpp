@@ -14,6 +14,7 @@
 #include <cstdio>
 #include <span>
 #include <string>
+#include <type_traits>
 
 #include "specula/error.h"
 #include "specula/voxel_grid.h"
@@ -124,6 +125,15 @@ const VoxelAttributes& VoxelGridTracer::attributes(uint32_t prim) const {
   return attrs_[prim];
 }
 
+/// Calls f(std::integral_constant<int, i>) for the axes i = 0, 1, 2: every per-axis array of the
+/// walk is then indexed by constants only, and the compiler keeps it in registers.
+template <class F>
+inline __attribute__((always_inline)) void for_axes(F&& f) {
+  f(std::integral_constant<int, 0>{});
+  f(std::integral_constant<int, 1>{});
+  f(std::integral_constant<int, 2>{});
+}
+
 class GridTraversal {
  public:
   /// Visits the occupied voxels the ray crosses, in ray order; leaf(lr, cell, attrs, index)
@@ -136,36 +146,41 @@ class GridTraversal {
     const uint32_t res = g.grid_.resolution();
     const float fres = static_cast<float>(res);
     const auto plane_t = [&r](uint32_t plane, int i) { return (static_cast<float>(plane) - r.o[i]) * r.inv[i]; };
+    const auto fixed = [&r](int i) { return ((r.fixed >> i) & 1u) != 0; };
+    const auto neg = [&r](int i) { return ((r.mirror >> i) & 1u) != 0; };
 
     // Clip to the grid box.
     float t0[3], t1[3];
-    for (int i = 0; i < 3; ++i) {
-      if ((r.fixed >> i) & 1u) {
-        if (!(0.0f <= r.o[i] && r.o[i] < fres)) return;
+    bool out = false;
+    for_axes([&](auto axis) {
+      constexpr int i = decltype(axis)::value;
+      if (fixed(i)) {
+        out = out || !(0.0f <= r.o[i] && r.o[i] < fres);
         t0[i] = -kInf;
         t1[i] = kInf;
       } else {
-        const bool neg = (r.mirror >> i) & 1u;
-        t0[i] = plane_t(neg ? res : 0u, i);
-        t1[i] = plane_t(neg ? 0u : res, i);
+        t0[i] = plane_t(neg(i) ? res : 0u, i);
+        t1[i] = plane_t(neg(i) ? 0u : res, i);
       }
-    }
+    });
+    if (out) return;
     const float tstart = std::max(std::max(t0[0], t0[1]), std::max(t0[2], r.tmin));
     if (!(tstart < std::min(std::min(t1[0], t1[1]), std::min(t1[2], r.tmax)))) return;
 
     // Start cell: on every moving axis entry plane <= tstart < exit plane (exact distances).
     uint32_t c[3];
     float tprev[3], tnext[3];
-    for (int i = 0; i < 3; ++i) {
-      if ((r.fixed >> i) & 1u) {
+    for_axes([&](auto axis) {
+      constexpr int i = decltype(axis)::value;
+      if (fixed(i)) {
         c[i] = static_cast<uint32_t>(std::floor(r.o[i]));
         tprev[i] = -kInf;
         tnext[i] = kInf;
-        continue;
+        return;
       }
       const double est = std::floor(static_cast<double>(r.o[i]) + static_cast<double>(tstart) * static_cast<double>(r.d[i]));
       uint32_t ci = static_cast<uint32_t>(std::clamp(est, 0.0, static_cast<double>(res - 1)));
-      if (!((r.mirror >> i) & 1u)) {
+      if (!neg(i)) {
         while (ci > 0 && plane_t(ci, i) > tstart) --ci;
         while (ci + 1 < res && plane_t(ci + 1, i) <= tstart) ++ci;
         tprev[i] = plane_t(ci, i);
@@ -177,7 +192,7 @@ class GridTraversal {
         tnext[i] = plane_t(ci, i);
       }
       c[i] = ci;
-    }
+    });
 
     // Continues from where the ray leaves the empty block of 2^shift voxels per side around its
     // cell: the nearest of the block's exit planes (exact distances, like every boundary), in
@@ -186,21 +201,27 @@ class GridTraversal {
     // ends (tmax) or leaves the grid in the block.
     const auto leave_block = [&](int shift) {
       float texit = kInf;
-      for (int i = 0; i < 3; ++i) {
-        if ((r.fixed >> i) & 1u) continue;
-        const uint32_t plane = (r.mirror >> i) & 1u ? c[i] >> shift << shift : std::min(((c[i] >> shift) + 1) << shift, res);
+      for_axes([&](auto axis) {
+        constexpr int i = decltype(axis)::value;
+        if (fixed(i)) return;
+        const uint32_t plane = neg(i) ? c[i] >> shift << shift : std::min(((c[i] >> shift) + 1) << shift, res);
         texit = std::min(texit, plane_t(plane, i));
-      }
+      });
       if (texit >= r.tmax) return false;
       // Each axis whose next boundary is within texit moves to the cell with entry <= texit <
       // exit: estimated from o + texit d, then corrected against the exact planes (the cell
       // the one-step loop would stop in, even where rounding makes neighbouring planes equal).
-      for (int i = 0; i < 3; ++i) {
-        if ((r.fixed >> i) & 1u || tnext[i] > texit) continue;
+      bool inside = true;
+      for_axes([&](auto axis) {
+        constexpr int i = decltype(axis)::value;
+        if (!inside || fixed(i) || tnext[i] > texit) return;
         const float est = r.o[i] + texit * r.d[i];
         uint32_t ci;
-        if ((r.mirror >> i) & 1u) {
-          if (plane_t(0u, i) <= texit) return false;  // leaves the grid
+        if (neg(i)) {
+          if (plane_t(0u, i) <= texit) {  // leaves the grid
+            inside = false;
+            return;
+          }
           // tnext = plane_t(c) <= texit: the cell is below c.
           ci = est <= 0.0f ? 0u : est >= static_cast<float>(c[i] - 1) ? c[i] - 1 : static_cast<uint32_t>(est);
           while (ci + 1 < c[i] && plane_t(ci + 1, i) > texit) ++ci;
@@ -208,7 +229,10 @@ class GridTraversal {
           tprev[i] = plane_t(ci + 1, i);
           tnext[i] = plane_t(ci, i);
         } else {
-          if (plane_t(res, i) <= texit) return false;
+          if (plane_t(res, i) <= texit) {
+            inside = false;
+            return;
+          }
           ci = est >= static_cast<float>(res - 1) ? res - 1
                : est <= static_cast<float>(c[i] + 1) ? c[i] + 1
                                                       : static_cast<uint32_t>(est);
@@ -218,8 +242,8 @@ class GridTraversal {
           tnext[i] = plane_t(ci + 1, i);
         }
         c[i] = ci;
-      }
-      return true;
+      });
+      return inside;
     };
 
     const uint32_t* table = g.table_.data();
@@ -258,25 +282,44 @@ class GridTraversal {
           uint32_t index = g.first_[slot];
           for (uint32_t w = 0; w < (b >> 6); ++w) index += static_cast<uint32_t>(std::popcount(bits[w]));
           index += static_cast<uint32_t>(std::popcount(bits[b >> 6] & ((uint64_t{1} << (b & 63u)) - 1)));
-          if (leaf(r, c, g.attrs_[index], index)) return;
+          const uint32_t cell[3] = {c[0], c[1], c[2]};  // a copy: c itself stays in registers
+          if (leaf(r, cell, g.attrs_[index], index)) return;
         }
       }
-      int k = tnext[0] <= tnext[1] ? 0 : 1;
-      if (tnext[2] < tnext[k]) k = 2;
-      if (tnext[k] >= r.tmax) return;
-      if ((r.mirror >> k) & 1u) {
-        if (c[k] == 0) return;
-        --c[k];
-        tprev[k] = tnext[k];
-        tnext[k] = plane_t(c[k], k);
-        new_brick = (c[k] & kBrickMask) == kBrickMask;
+      // One step along the axis whose next boundary is nearest (ties: the lowest axis).
+      bool done = false;
+      const auto step = [&](auto axis) {
+        constexpr int k = decltype(axis)::value;
+        if (tnext[k] >= r.tmax) {
+          done = true;
+        } else if (neg(k)) {
+          if (c[k] == 0) {
+            done = true;
+            return;
+          }
+          --c[k];
+          tprev[k] = tnext[k];
+          tnext[k] = plane_t(c[k], k);
+          new_brick = (c[k] & kBrickMask) == kBrickMask;
+        } else {
+          if (c[k] + 1 >= res) {
+            done = true;
+            return;
+          }
+          ++c[k];
+          tprev[k] = tnext[k];
+          tnext[k] = plane_t(c[k] + 1, k);
+          new_brick = (c[k] & kBrickMask) == 0;
+        }
+      };
+      if (tnext[0] <= tnext[1]) {
+        if (tnext[2] < tnext[0]) step(std::integral_constant<int, 2>{});
+        else step(std::integral_constant<int, 0>{});
       } else {
-        if (c[k] + 1 >= res) return;
-        ++c[k];
-        tprev[k] = tnext[k];
-        tnext[k] = plane_t(c[k] + 1, k);
-        new_brick = (c[k] & kBrickMask) == 0;
+        if (tnext[2] < tnext[1]) step(std::integral_constant<int, 2>{});
+        else step(std::integral_constant<int, 1>{});
       }
+      if (done) return;
     }
   }
 };
