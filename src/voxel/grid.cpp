@@ -59,10 +59,10 @@ VoxelGridTracer VoxelGridTracer::build(const VoxelSet& set, const VoxelTracerOpt
   if (bytes > options.max_grid_bytes) {
     char msg[360];
     std::snprintf(msg, sizeof msg,
-                  "grid: a voxel grid at depth %d (%u^3 voxels; a table of %.0f bricks of 8^3, %llu occupied) needs "
+                  "grid: a voxel grid at depth %d (%u^3 voxels; a table of %llu bricks of 8^3, %llu occupied) needs "
                   "%.2f GiB, over the limit of %.2f GiB (VoxelTracerOptions::max_grid_bytes); use the SVO or a "
                   "smaller depth",
-                  depth, set.grid.resolution(), static_cast<double>(table_bytes(depth) / sizeof(uint32_t)),
+                  depth, set.grid.resolution(), static_cast<unsigned long long>(table_bytes(depth) / sizeof(uint32_t)),
                   static_cast<unsigned long long>(bricks), static_cast<double>(bytes) / 1073741824.0,
                   static_cast<double>(options.max_grid_bytes) / 1073741824.0);
     throw Error(msg);
