@@ -5,8 +5,9 @@
 // on every axis entry <= t_start < exit holds with the same numbers the kernel uses (the
 // seed's "random misses" came from trusting floor(o + t d) alone). Stepping (section 3.4)
 // recomputes each next boundary directly from its integer plane instead of accumulating a
-// t-delta, which keeps the distances bit-identical to the octree's. An empty 8^3 brick is
-// crossed in one step (GridTraversal::walk).
+// t-delta, which keeps the distances bit-identical to the octree's. The largest empty block
+// around a cell (an 8^3 brick, or 64^3, 512^3, ... voxels) is crossed in one step
+// (GridTraversal::walk).
 #include <algorithm>
 #include <bit>
 #include <cmath>
@@ -75,28 +76,26 @@ VoxelGridTracer VoxelGridTracer::build(const VoxelSet& set, const VoxelTracerOpt
   g.table_.assign(n * n * n, kEmptyBrick);
   g.bricks_.assign(bricks, Brick{});
   g.first_.assign(bricks, 0);
+  for (int shift = 2 * kBrickShift; depth - shift >= 1; shift += kBrickShift) {
+    Level level{shift, uint64_t{1} << (depth - shift), {}};
+    level.bits.assign((level.per_axis * level.per_axis * level.per_axis + 63) / 64, 0);
+    g.levels_.insert(g.levels_.begin(), std::move(level));
+  }
   uint32_t slot = kEmptyBrick;
   for (size_t i = 0; i < set.codes.size(); ++i) {
     uint32_t x, y, z;
     morton_decode(set.codes[i], x, y, z);
-    if (i == 0 || (set.codes[i] >> 9) != (set.codes[i - 1] >> 9)) {
+    if (i == 0 || (set.codes[i] >> 9) != (set.codes[i - 1] >> 9)) {  // a new brick
       ++slot;
       g.table_[(x >> kBrickShift) + n * ((y >> kBrickShift) + n * (z >> kBrickShift))] = slot;
       g.first_[slot] = static_cast<uint32_t>(i);
+      for (Level& level : g.levels_) {  // (a block is occupied when one of its bricks is)
+        const uint64_t k = (x >> level.shift) + level.per_axis * ((y >> level.shift) + level.per_axis * (z >> level.shift));
+        level.bits[k >> 6] |= uint64_t{1} << (k & 63u);
+      }
     }
     const uint32_t b = brick_bit(x, y, z);
     g.bricks_[slot].bits[b >> 6] |= uint64_t{1} << (b & 63u);
-  }
-  for (int shift = 2 * kBrickShift; depth - shift >= 1; shift += kBrickShift) {
-    Level level{shift, uint64_t{1} << (depth - shift), {}};
-    level.bits.assign((level.per_axis * level.per_axis * level.per_axis + 63) / 64, 0);
-    for (const uint64_t code : set.codes) {
-      uint32_t x, y, z;
-      morton_decode(code, x, y, z);
-      const uint64_t k = (x >> shift) + level.per_axis * ((y >> shift) + level.per_axis * (z >> shift));
-      level.bits[k >> 6] |= uint64_t{1} << (k & 63u);
-    }
-    g.levels_.insert(g.levels_.begin(), std::move(level));
   }
   g.attrs_ = voxel::attributes_or_default(set);
   return g;
