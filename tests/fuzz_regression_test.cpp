@@ -149,6 +149,21 @@ TEST(FuzzFindings, PlyListCountBeyondAnIntegerIsRefusedNamingTheCount) {
   fs::remove_all(dir);
 }
 
+// fuzz_gltf, UBSan (a one-hour run with a random seed, 2026-12-07): a buffer whose data URI is
+// shorter than its byteLength of 1e47 was refused, but the message converted 1e47 to uint64_t
+// (undefined behaviour). The refusal must print the number as written.
+TEST(FuzzFindings, GltfHugeByteLengthOfADataUriIsRefusedNamingIt) {
+  const fs::path dir = findings_dir();
+  fs::copy_file(fs::path(SPECULA_TEST_DATA_DIR) / "fuzz-regressions" / "fuzz_gltf" /
+                    "crash-c0992f59-data-uri-bytelength-1e47",
+                dir / "huge.gltf");
+  const std::string msg = load_error(dir / "huge.gltf");
+  EXPECT_NE(msg.find("buffers[0].uri: byteLength 1e+47 exceeds what the data URI holds (45 bytes at most)"),
+            std::string::npos)
+      << msg;
+  fs::remove_all(dir);
+}
+
 // fuzz_sky_image, LeakSanitizer: tinyexr's LoadEXR leaked the channel buffers of an EXR whose
 // pixel data fails to decode. The error must name the file (the leak itself is caught by the
 // asan stage replaying the regression file).

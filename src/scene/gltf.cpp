@@ -28,6 +28,7 @@
 // (candela for point = W/sr here, lux for directional = irradiance).
 #include <algorithm>
 #include <cmath>
+#include <cstdio>
 #include <cstring>
 #include <fstream>
 #include <unordered_set>
@@ -288,9 +289,14 @@ class GltfLoader {
           if (is_buffer && item.contains("byteLength") && item["byteLength"].is_number()) {
             const double want = item["byteLength"].get<double>();
             const double can = static_cast<double>(uri.size() - comma - 1) * 0.75 + 3.0;
-            if (!(want >= 0) || want > can)
-              fail(where + "byteLength " + std::to_string(static_cast<uint64_t>(std::max(want, 0.0))) +
-                   " exceeds what the data URI holds");
+            if (!(want >= 0) || want > can) {
+              // JSON numbers may be far beyond any integer type (1e47): printed as a double, never
+              // converted to one.
+              char shown[40];
+              std::snprintf(shown, sizeof shown, want < 9007199254740992.0 ? "%.0f" : "%.6g", want);
+              fail(where + "byteLength " + shown + " exceeds what the data URI holds (" +
+                   std::to_string(static_cast<uint64_t>(can)) + " bytes at most)");
+            }
           }
           continue;
         }
