@@ -95,8 +95,16 @@ struct PacketCheck {
 void expect_packets_match(const TriangleInput& input, const std::vector<Ray>& rays, const std::string& label,
                           const PacketCheck& check = {}, const BvhOptions& options = {}) {
   const size_t n = rays.size();
-  std::vector<Hit> hb(n);
-  std::vector<Vec3> tb(n);
+  // Every output starts as its own record no tracer returns: a ray a kernel leaves unwritten
+  // (Tracer::intersect and transmittance write every ray, a miss too) shows as a difference.
+  const auto poison = [](uint32_t prim) {
+    Hit h;
+    h.t = -1.0f;
+    h.prim = prim;
+    return h;
+  };
+  std::vector<Hit> hb(n, poison(0xFFFFFFF0u));
+  std::vector<Vec3> tb(n, Vec3(-1.0f));
   if (check.brute_every > 0) {
     const auto brute = build_tracer(AccelKind::Brute, input);
     for (size_t i = 0; i < n; i += check.brute_every) {
@@ -112,8 +120,8 @@ void expect_packets_match(const TriangleInput& input, const std::vector<Ray>& ra
     packet_opt.packets = true;
     const auto single = build_tracer(AccelKind::Bvh, input, single_opt);
     const auto packet = build_tracer(AccelKind::Bvh, input, packet_opt);
-    std::vector<Hit> hs(n), hp(n), hc(n);
-    std::vector<Vec3> ts(n), tp(n), tc(n);
+    std::vector<Hit> hs(n, poison(0xFFFFFFF1u)), hp(n, poison(0xFFFFFFF2u)), hc(n, poison(0xFFFFFFF3u));
+    std::vector<Vec3> ts(n, Vec3(-2.0f)), tp(n, Vec3(-3.0f)), tc(n, Vec3(-4.0f));
     single->intersect(rays, hs);
     single->transmittance(rays, ts);
     TraceStats st, stt;

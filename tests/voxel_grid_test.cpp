@@ -224,7 +224,12 @@ TEST(VoxelGrid, SkipsEmptyBricksExactly) {
     o.mode = mode;
     const VoxelGridTracer g = VoxelGridTracer::build(set, o);
     const voxel::VoxelBruteTracer brute(set, o);
-    std::vector<Hit> hg(rays.size()), hb(rays.size());
+    // Both outputs start as records no tracer returns (and differ): every ray must be written.
+    Hit unwritten;
+    unwritten.t = -1.0f;
+    unwritten.prim = 0xFFFFFFF0u;
+    std::vector<Hit> hg(rays.size(), unwritten), hb(rays.size(), unwritten);
+    for (Hit& h : hb) h.prim = 0xFFFFFFF1u;
     g.intersect(rays, hg);
     brute.intersect(rays, hb);
     size_t hits = 0;
@@ -237,7 +242,7 @@ TEST(VoxelGrid, SkipsEmptyBricksExactly) {
     }
     EXPECT_GT(hits, 2000u);
     EXPECT_LT(hits, rays.size() - 2000u);  // and many rays cross the grid without a hit
-    std::vector<Vec3> tg(rays.size()), tb(rays.size());
+    std::vector<Vec3> tg(rays.size(), Vec3(-1.0f)), tb(rays.size(), Vec3(-2.0f));
     g.transmittance(rays, tg);
     brute.transmittance(rays, tb);
     for (size_t i = 0; i < rays.size(); ++i) ASSERT_EQ(tg[i], tb[i]) << "ray " << i;

@@ -775,7 +775,7 @@ void render_tile(const Context& ctx, const SkyEval& sky, Scratch& s, const Pinho
         s.trace_order.trace_in_order(rays, s.sorted_rays, s.sorted_hits, std::span<Hit>(s.hits),
                                      [&](std::span<const Ray> r, std::span<Hit> h) { trace(r, {}, {}, h, nullptr); });
       } else {
-        s.hits.assign(n, Hit{});
+        s.hits.resize(n);  // the tracer writes every hit (a miss too: Tracer::intersect)
         trace(rays, skip, skip_prim, s.hits, nullptr);
       }
     }
