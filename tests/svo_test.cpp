@@ -294,9 +294,7 @@ TEST(SvoOracle, HundredThousandRaysSvoEqualsGrid) {
       o.mode = mode;
       const SparseVoxelOctree svo = SparseVoxelOctree::build(c.set, o);
       const VoxelGridTracer grid = VoxelGridTracer::build(c.set, o);
-      // 100k rays, except for the slow dense-DDA reference at depth 9 in contour mode.
-      const size_t n = c.set.grid.depth > 8 && mode == VoxelHitMode::Contours ? 25000 : 100000;
-      const std::vector<Ray> rays = make_rays(c.set, n, 12);
+      const std::vector<Ray> rays = make_rays(c.set, 100000, 12);
       const std::string what = c.name + " " + to_string(mode);
       EXPECT_EQ(compare_hits(grid, svo, rays, what), 0u) << what;
       // Brute force on a subset (it is O(voxels) per ray).
