@@ -97,12 +97,7 @@ void expect_packets_match(const TriangleInput& input, const std::vector<Ray>& ra
   const size_t n = rays.size();
   // Every output starts as its own record no tracer returns: a ray a kernel leaves unwritten
   // (Tracer::intersect and transmittance write every ray, a miss too) shows as a difference.
-  const auto poison = [](uint32_t prim) {
-    Hit h;
-    h.t = -1.0f;
-    h.prim = prim;
-    return h;
-  };
+  const auto poison = test::unwritten_hit;
   std::vector<Hit> hb(n, poison(0xFFFFFFF0u));
   std::vector<Vec3> tb(n, Vec3(-1.0f));
   if (check.brute_every > 0) {

@@ -2,6 +2,7 @@
 // ray through the batched Tracer interface, describing a ray in a failure message.
 #pragma once
 
+#include <cstdint>
 #include <span>
 #include <sstream>
 #include <string>
@@ -18,6 +19,16 @@ inline Ray make_ray(Vec3 org, Vec3 dir, float tmin = 0.0f, float tmax = kInf) {
   r.tmin = tmin;
   r.tmax = tmax;
   return r;
+}
+
+/// A hit record no tracer returns (t -1, prim \p prim, a "hit"): outputs that start as two
+/// different ones show every ray a tracer left unwritten as a difference (Tracer::intersect
+/// writes every hit, a miss too).
+inline Hit unwritten_hit(uint32_t prim) {
+  Hit h;
+  h.t = -1.0f;
+  h.prim = prim;
+  return h;
 }
 
 inline Hit trace1(const Tracer& t, const Ray& r) {

@@ -201,19 +201,9 @@ bool same_hit(const Hit& a, const Hit& b) {
   return std::bit_cast<uint32_t>(a.t) == std::bit_cast<uint32_t>(b.t) && a.ng == b.ng;
 }
 
-/// A hit record no tracer returns (prim \p prim, t -1): the outputs start as two different
-/// ones, so a ray a tracer leaves unwritten (Tracer::intersect writes every hit, a miss too)
-/// shows as a difference.
-Hit poison_hit(uint32_t prim) {
-  Hit h;
-  h.t = -1.0f;
-  h.prim = prim;
-  return h;
-}
-
 /// Counts rays where \p b differs from \p a (printing the first few).
 size_t compare_hits(const Tracer& a, const Tracer& b, std::span<const Ray> rays, const std::string& what) {
-  std::vector<Hit> ha(rays.size(), poison_hit(0xFFFFFFF0u)), hb(rays.size(), poison_hit(0xFFFFFFF1u));
+  std::vector<Hit> ha(rays.size(), test::unwritten_hit(0xFFFFFFF0u)), hb(rays.size(), test::unwritten_hit(0xFFFFFFF1u));
   a.intersect(rays, ha);
   b.intersect(rays, hb);
   size_t bad = 0;

@@ -225,11 +225,7 @@ TEST(VoxelGrid, SkipsEmptyBricksExactly) {
     const VoxelGridTracer g = VoxelGridTracer::build(set, o);
     const voxel::VoxelBruteTracer brute(set, o);
     // Both outputs start as records no tracer returns (and differ): every ray must be written.
-    Hit unwritten;
-    unwritten.t = -1.0f;
-    unwritten.prim = 0xFFFFFFF0u;
-    std::vector<Hit> hg(rays.size(), unwritten), hb(rays.size(), unwritten);
-    for (Hit& h : hb) h.prim = 0xFFFFFFF1u;
+    std::vector<Hit> hg(rays.size(), test::unwritten_hit(0xFFFFFFF0u)), hb(rays.size(), test::unwritten_hit(0xFFFFFFF1u));
     g.intersect(rays, hg);
     brute.intersect(rays, hb);
     size_t hits = 0;

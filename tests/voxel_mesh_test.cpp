@@ -72,11 +72,7 @@ TEST_P(VoxelMesh, OctreeEqualsGridOnHundredThousandRays) {
       const auto svo = build_voxel_tracer("svo", set, to);
       const auto grid = build_voxel_tracer("grid", set, to);
       // Different records no tracer returns: a ray left unwritten shows as a difference.
-      Hit unwritten;
-      unwritten.t = -1.0f;
-      unwritten.prim = 0xFFFFFFF0u;
-      std::vector<Hit> a(rays.size(), unwritten), b(rays.size(), unwritten);
-      for (Hit& h : b) h.prim = 0xFFFFFFF1u;
+      std::vector<Hit> a(rays.size(), test::unwritten_hit(0xFFFFFFF0u)), b(rays.size(), test::unwritten_hit(0xFFFFFFF1u));
       svo->intersect(rays, a);
       grid->intersect(rays, b);
       size_t hits = 0;
