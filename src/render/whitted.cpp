@@ -864,8 +864,7 @@ void render_tile(const Context& ctx, const SkyEval& sky, Scratch& s, const Pinho
         for (size_t l = 0; l < ctx.lights.size(); ++l) {
           const size_t first = n * ctx.light_first_sample[l], count = s.light_cursor[l] - first;
           if (count == 0) continue;
-          const std::span<Vec3> t(s.shadow_t.data() + first, count);
-          std::fill(t.begin(), t.end(), Vec3{});
+          const std::span<Vec3> t(s.shadow_t.data() + first, count);  // every ray written (Tracer::transmittance)
           ctx.tracer.transmittance(std::span<const Ray>(s.shadow_rays.data() + first, count), t);
         }
       }
@@ -874,7 +873,7 @@ void render_tile(const Context& ctx, const SkyEval& sky, Scratch& s, const Pinho
       counters.shadow += ns;
     } else if (ns > 0) {
       const std::span<const Ray> shadow_rays(s.shadow_rays.data(), ns);
-      s.shadow_t.assign(ns, Vec3{});
+      s.shadow_t.resize(ns);  // the tracer writes every ray's transmittance
       if (ctx.want_cost) [[unlikely]] {
         for (size_t i = 0; i < ns; ++i) {
           TraceStats ts;
