@@ -164,6 +164,19 @@ TEST(FuzzFindings, GltfHugeByteLengthOfADataUriIsRefusedNamingIt) {
   fs::remove_all(dir);
 }
 
+// fuzz_sky_image, out of memory (a 14-minute run with a random seed, 2026-12-07): tinyexr sizes
+// a scanline EXR's offset table by its chunkCount attribute unchecked; 527 bytes claiming 1.8
+// billion chunks made it allocate 14 GB. The table must fit in the file.
+TEST(FuzzFindings, ExrChunkCountBeyondTheFileIsRefusedBeforeAllocating) {
+  const fs::path dir = findings_dir();
+  fs::copy_file(fs::path(SPECULA_TEST_DATA_DIR) / "fuzz-regressions" / "fuzz_sky_image" / "oom-6db908c9-exr-chunkcount-huge",
+                dir / "chunks.exr");
+  const std::string msg = image_error(dir / "chunks.exr");
+  EXPECT_NE(msg.find("cannot read EXR: chunkCount "), std::string::npos) << msg;
+  EXPECT_NE(msg.find(" claims more chunk offsets than the file holds (527 bytes)"), std::string::npos) << msg;
+  fs::remove_all(dir);
+}
+
 // fuzz_sky_image, LeakSanitizer: tinyexr's LoadEXR leaked the channel buffers of an EXR whose
 // pixel data fails to decode. The error must name the file (the leak itself is caught by the
 // asan stage replaying the regression file).

@@ -544,6 +544,16 @@ std::vector<Vec3> read_exr(const std::string& path, const InputLimits& limits, i
   for (int c = 0; c < h.num_channels; ++c)
     if (h.pixel_types[c] == TINYEXR_PIXELTYPE_HALF) h.requested_pixel_types[c] = TINYEXR_PIXELTYPE_FLOAT;
   if (h.tiled) check_exr_tiles(path, h, bytes);
+  // tinyexr 1.0.1 sizes a scanline image's offset table by its "chunkCount" attribute when
+  // there is one, unchecked: 8 bytes per claimed chunk (a 527-byte file claiming 1.8 billion
+  // made it allocate 14 GB; found by fuzz_sky_image). The table must fit in the file.
+  if (!h.tiled && h.chunk_count > 0) {
+    const uint64_t table = 8 + uint64_t{h.header_len};  // magic + version, header
+    if (table > bytes.size() || static_cast<uint64_t>(h.chunk_count) > (bytes.size() - table) / 8)
+      throw file_error(path, "cannot read EXR: chunkCount " + std::to_string(h.chunk_count) +
+                                 " claims more chunk offsets than the file holds (" + std::to_string(bytes.size()) +
+                                 " bytes)");
+  }
   {
     const int64_t dw = int64_t{h.data_window.max_x} - h.data_window.min_x + 1;
     const int64_t dh = int64_t{h.data_window.max_y} - h.data_window.min_y + 1;
