@@ -42,6 +42,16 @@ constexpr uint32_t brick_bit(uint32_t x, uint32_t y, uint32_t z) {
 }
 static_assert(brick_bit(5, 3, 6) == (morton_encode(5, 3, 6) & 511u), "brick bits follow the Morton order");
 
+/// The Morton code of the brick holding the voxel of Morton code \p code (its bits above the
+/// brick's own): sorted codes put a brick's voxels next to each other, bricks in Morton order.
+constexpr uint64_t brick_key(uint64_t code) { return code >> (3 * kBrickShift); }
+
+/// Index (x fastest) of the block of 2^shift voxels per side holding voxel (x, y, z), in a level
+/// of \p n blocks per axis: the brick table (shift kBrickShift) and the coarse levels.
+inline uint64_t block_index(uint32_t x, uint32_t y, uint32_t z, int shift, uint64_t n) {
+  return (x >> shift) + n * ((y >> shift) + n * (z >> shift));
+}
+
 }  // namespace
 
 uint64_t VoxelGridTracer::table_bytes(int depth) {
@@ -52,10 +62,9 @@ uint64_t VoxelGridTracer::table_bytes(int depth) {
 VoxelGridTracer VoxelGridTracer::build(const VoxelSet& set, const VoxelTracerOptions& options) {
   voxel::validate_set(set, "grid");
   const int depth = set.grid.depth;
-  // Codes are sorted, and a code's bits above the low 9 are its brick's Morton code: the voxels
-  // of a brick are consecutive, and the bricks come in Morton order.
+  const auto starts_brick = [&set](size_t i) { return i == 0 || brick_key(set.codes[i]) != brick_key(set.codes[i - 1]); };
   uint64_t bricks = 0;
-  for (size_t i = 0; i < set.codes.size(); ++i) bricks += i == 0 || (set.codes[i] >> 9) != (set.codes[i - 1] >> 9);
+  for (size_t i = 0; i < set.codes.size(); ++i) bricks += starts_brick(i);
   const uint64_t bytes = table_bytes(depth) + bricks * (sizeof(Brick) + sizeof(uint32_t));
   if (bytes > options.max_grid_bytes) {
     char msg[360];
@@ -85,12 +94,12 @@ VoxelGridTracer VoxelGridTracer::build(const VoxelSet& set, const VoxelTracerOpt
   for (size_t i = 0; i < set.codes.size(); ++i) {
     uint32_t x, y, z;
     morton_decode(set.codes[i], x, y, z);
-    if (i == 0 || (set.codes[i] >> 9) != (set.codes[i - 1] >> 9)) {  // a new brick
+    if (starts_brick(i)) {
       ++slot;
-      g.table_[(x >> kBrickShift) + n * ((y >> kBrickShift) + n * (z >> kBrickShift))] = slot;
+      g.table_[block_index(x, y, z, kBrickShift, n)] = slot;
       g.first_[slot] = static_cast<uint32_t>(i);
       for (Level& level : g.levels_) {  // (a block is occupied when one of its bricks is)
-        const uint64_t k = (x >> level.shift) + level.per_axis * ((y >> level.shift) + level.per_axis * (z >> level.shift));
+        const uint64_t k = block_index(x, y, z, level.shift, level.per_axis);
         level.bits[k >> 6] |= uint64_t{1} << (k & 63u);
       }
     }
@@ -104,8 +113,7 @@ VoxelGridTracer VoxelGridTracer::build(const VoxelSet& set, const VoxelTracerOpt
 bool VoxelGridTracer::occupied(uint32_t x, uint32_t y, uint32_t z) const {
   const uint64_t res = grid_.resolution();
   if (x >= res || y >= res || z >= res || table_.empty()) return false;
-  const uint64_t n = bricks_per_axis_;
-  const uint32_t slot = table_[(x >> kBrickShift) + n * ((y >> kBrickShift) + n * (z >> kBrickShift))];
+  const uint32_t slot = table_[block_index(x, y, z, kBrickShift, bricks_per_axis_)];
   if (slot == kEmptyBrick) return false;
   const uint32_t b = brick_bit(x, y, z);
   return (bricks_[slot].bits[b >> 6] >> (b & 63u)) & 1u;
@@ -166,31 +174,38 @@ class GridTraversal {
     const float tstart = std::max(std::max(t0[0], t0[1]), std::max(t0[2], r.tmin));
     if (!(tstart < std::min(std::min(t1[0], t1[1]), std::min(t1[2], r.tmax)))) return;
 
-    // Start cell: on every moving axis entry plane <= tstart < exit plane (exact distances).
+    // Places moving axis i in the cell of [lo, hi] where entry plane <= t < exit plane (exact
+    // distances): estimated from o + t d, then corrected against the planes. Where rounding
+    // makes neighbouring planes equal it is the cell the one-step walk stops in (the last one
+    // entered by t), whatever the estimate.
     uint32_t c[3];
     float tprev[3], tnext[3];
+    const auto place = [&](int i, float t, uint32_t lo, uint32_t hi) {
+      const float est = r.o[i] + t * r.d[i];
+      uint32_t ci = !(est > static_cast<float>(lo)) ? lo : est >= static_cast<float>(hi) ? hi : static_cast<uint32_t>(est);
+      if (!neg(i)) {
+        while (ci > lo && plane_t(ci, i) > t) --ci;
+        while (ci < hi && plane_t(ci + 1, i) <= t) ++ci;
+        tprev[i] = plane_t(ci, i);
+        tnext[i] = plane_t(ci + 1, i);
+      } else {
+        while (ci < hi && plane_t(ci + 1, i) > t) ++ci;
+        while (ci > lo && plane_t(ci, i) <= t) --ci;
+        tprev[i] = plane_t(ci + 1, i);
+        tnext[i] = plane_t(ci, i);
+      }
+      c[i] = ci;
+    };
+    // Start cell.
     for_axes([&](auto axis) {
       constexpr int i = decltype(axis)::value;
       if (fixed(i)) {
         c[i] = static_cast<uint32_t>(std::floor(r.o[i]));
         tprev[i] = -kInf;
         tnext[i] = kInf;
-        return;
-      }
-      const double est = std::floor(static_cast<double>(r.o[i]) + static_cast<double>(tstart) * static_cast<double>(r.d[i]));
-      uint32_t ci = static_cast<uint32_t>(std::clamp(est, 0.0, static_cast<double>(res - 1)));
-      if (!neg(i)) {
-        while (ci > 0 && plane_t(ci, i) > tstart) --ci;
-        while (ci + 1 < res && plane_t(ci + 1, i) <= tstart) ++ci;
-        tprev[i] = plane_t(ci, i);
-        tnext[i] = plane_t(ci + 1, i);
       } else {
-        while (ci + 1 < res && plane_t(ci + 1, i) > tstart) ++ci;
-        while (ci > 0 && plane_t(ci, i) <= tstart) --ci;
-        tprev[i] = plane_t(ci + 1, i);
-        tnext[i] = plane_t(ci, i);
+        place(i, tstart, 0u, res - 1);
       }
-      c[i] = ci;
     });
 
     // Continues from where the ray leaves the empty block of 2^shift voxels per side around its
@@ -207,40 +222,18 @@ class GridTraversal {
         texit = std::min(texit, plane_t(plane, i));
       });
       if (texit >= r.tmax) return false;
-      // Each axis whose next boundary is within texit moves to the cell with entry <= texit <
-      // exit: estimated from o + texit d, then corrected against the exact planes (the cell
-      // the one-step loop would stop in, even where rounding makes neighbouring planes equal).
+      // Each axis whose next boundary is within texit moves on, past its current cell.
       bool inside = true;
       for_axes([&](auto axis) {
         constexpr int i = decltype(axis)::value;
         if (!inside || fixed(i) || tnext[i] > texit) return;
-        const float est = r.o[i] + texit * r.d[i];
-        uint32_t ci;
-        if (neg(i)) {
-          if (plane_t(0u, i) <= texit) {  // leaves the grid
-            inside = false;
-            return;
-          }
-          // tnext = plane_t(c) <= texit: the cell is below c.
-          ci = est <= 0.0f ? 0u : est >= static_cast<float>(c[i] - 1) ? c[i] - 1 : static_cast<uint32_t>(est);
-          while (ci + 1 < c[i] && plane_t(ci + 1, i) > texit) ++ci;
-          while (ci > 0 && plane_t(ci, i) <= texit) --ci;
-          tprev[i] = plane_t(ci + 1, i);
-          tnext[i] = plane_t(ci, i);
-        } else {
-          if (plane_t(res, i) <= texit) {
-            inside = false;
-            return;
-          }
-          ci = est >= static_cast<float>(res - 1) ? res - 1
-               : est <= static_cast<float>(c[i] + 1) ? c[i] + 1
-                                                      : static_cast<uint32_t>(est);
-          while (ci > c[i] + 1 && plane_t(ci, i) > texit) --ci;
-          while (ci + 1 < res && plane_t(ci + 1, i) <= texit) ++ci;
-          tprev[i] = plane_t(ci, i);
-          tnext[i] = plane_t(ci + 1, i);
+        if (plane_t(neg(i) ? 0u : res, i) <= texit) {  // leaves the grid
+          inside = false;
+          return;
         }
-        c[i] = ci;
+        // (tnext <= texit < the grid's exit: there is a cell beyond c on this axis.)
+        if (neg(i)) place(i, texit, 0u, c[i] - 1);
+        else place(i, texit, c[i] + 1, res - 1);
       });
       return inside;
     };
@@ -256,14 +249,14 @@ class GridTraversal {
         // The largest empty block around the cell, coarsest level first.
         int empty = 0;
         for (const VoxelGridTracer::Level& level : g.levels_) {
-          const uint64_t k = (c[0] >> level.shift) + level.per_axis * ((c[1] >> level.shift) + level.per_axis * (c[2] >> level.shift));
+          const uint64_t k = block_index(c[0], c[1], c[2], level.shift, level.per_axis);
           if (!((level.bits[k >> 6] >> (k & 63u)) & 1u)) {
             empty = level.shift;
             break;
           }
         }
         slot = empty != 0 ? VoxelGridTracer::kEmptyBrick
-                          : table[(c[0] >> kBrickShift) + n * ((c[1] >> kBrickShift) + n * (c[2] >> kBrickShift))];
+                          : table[block_index(c[0], c[1], c[2], kBrickShift, n)];
         if (slot == VoxelGridTracer::kEmptyBrick) {
           if (!leave_block(empty != 0 ? empty : kBrickShift)) return;
           continue;
