@@ -113,6 +113,12 @@ fs::path findings_dir() {
   return dir;
 }
 
+/// tests/data/fuzz-regressions/TARGET/NAME: a finding's input (tests copy it under a name whose
+/// extension picks the loader).
+fs::path regression_file(const char* target, const char* name) {
+  return fs::path(SPECULA_TEST_DATA_DIR) / "fuzz-regressions" / target / name;
+}
+
 std::string load_error(const fs::path& p) {
   return specula::test::error_of([&] {
     specula::LoadOptions o;
@@ -154,8 +160,7 @@ TEST(FuzzFindings, PlyListCountBeyondAnIntegerIsRefusedNamingTheCount) {
 // (undefined behaviour). The refusal must print the number as written.
 TEST(FuzzFindings, GltfHugeByteLengthOfADataUriIsRefusedNamingIt) {
   const fs::path dir = findings_dir();
-  fs::copy_file(fs::path(SPECULA_TEST_DATA_DIR) / "fuzz-regressions" / "fuzz_gltf" /
-                    "crash-c0992f59-data-uri-bytelength-1e47",
+  fs::copy_file(regression_file("fuzz_gltf", "crash-c0992f59-data-uri-bytelength-1e47"),
                 dir / "huge.gltf");
   const std::string msg = load_error(dir / "huge.gltf");
   EXPECT_NE(msg.find("buffers[0].uri: byteLength 1e+47 exceeds what the data URI holds (45 bytes at most)"),
@@ -169,7 +174,7 @@ TEST(FuzzFindings, GltfHugeByteLengthOfADataUriIsRefusedNamingIt) {
 // billion chunks made it allocate 14 GB. The table must fit in the file.
 TEST(FuzzFindings, ExrChunkCountBeyondTheFileIsRefusedBeforeAllocating) {
   const fs::path dir = findings_dir();
-  fs::copy_file(fs::path(SPECULA_TEST_DATA_DIR) / "fuzz-regressions" / "fuzz_sky_image" / "oom-6db908c9-exr-chunkcount-huge",
+  fs::copy_file(regression_file("fuzz_sky_image", "oom-6db908c9-exr-chunkcount-huge"),
                 dir / "chunks.exr");
   const std::string msg = image_error(dir / "chunks.exr");
   EXPECT_NE(msg.find("cannot read EXR: chunkCount "), std::string::npos) << msg;
@@ -182,8 +187,7 @@ TEST(FuzzFindings, ExrChunkCountBeyondTheFileIsRefusedBeforeAllocating) {
 // asan stage replaying the regression file).
 TEST(FuzzFindings, ExrWithCorruptPixelDataIsAnError) {
   const fs::path dir = findings_dir();
-  const fs::path src = fs::path(SPECULA_TEST_DATA_DIR) / "fuzz-regressions" / "fuzz_sky_image" /
-                       "leak-08ad273b-exr-bad-pixel-data";
+  const fs::path src = regression_file("fuzz_sky_image", "leak-08ad273b-exr-bad-pixel-data");
   ASSERT_TRUE(fs::is_regular_file(src));
   fs::copy_file(src, dir / "sky.exr");
   const std::string msg = image_error(dir / "sky.exr");
@@ -305,8 +309,7 @@ TEST(FuzzFindings, PngWithEmptyIdatLoads) {
 // the bytes left first; a valid PNG with data after IEND still loads.
 TEST(FuzzFindings, PngChunkLongerThanTheFileIsRefusedBeforeAllocating) {
   const fs::path dir = findings_dir();
-  fs::copy_file(fs::path(SPECULA_TEST_DATA_DIR) / "fuzz-regressions" / "fuzz_sky_image" /
-                    "oom-16ae1b3d-png-idat-length-beyond-file",
+  fs::copy_file(regression_file("fuzz_sky_image", "oom-16ae1b3d-png-idat-length-beyond-file"),
                 dir / "bomb.png");
   const std::string msg = image_error(dir / "bomb.png");
   EXPECT_NE(msg.find("bomb.png: cannot read PNG: byte 63: chunk 'IDAT' claims 1700986898 bytes, "
@@ -327,7 +330,7 @@ TEST(FuzzFindings, PngChunkLongerThanTheFileIsRefusedBeforeAllocating) {
 // 3 GB. The decoding memory is estimated from the header first and refused over the budget.
 TEST(FuzzFindings, ExrClaimingHugeTilesIsRefusedBeforeAllocating) {
   const fs::path dir = findings_dir();
-  fs::copy_file(fs::path(SPECULA_TEST_DATA_DIR) / "fuzz-regressions" / "fuzz_sky_image" / "oom-05721490-exr-huge-tiles",
+  fs::copy_file(regression_file("fuzz_sky_image", "oom-05721490-exr-huge-tiles"),
                 dir / "huge.exr");
   const std::string msg = image_error(dir / "huge.exr");
   EXPECT_NE(msg.find("to decode, over the limit of 1 GiB (--max-image-memory raises it)"), std::string::npos) << msg;
