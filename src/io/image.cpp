@@ -481,6 +481,16 @@ void check_exr_attributes(const std::string& path, const std::vector<unsigned ch
   }
 }
 
+/// Where a single-part EXR's chunk offset table starts (after the magic number, the version
+/// and the header), and how many 8-byte offsets the file has room for from there.
+struct ExrOffsetTable {
+  uint64_t start, room;
+};
+ExrOffsetTable exr_offset_table(const EXRHeader& h, const std::vector<unsigned char>& bytes) {
+  const uint64_t start = 8 + uint64_t{h.header_len};
+  return {start, start > bytes.size() ? 0 : (bytes.size() - start) / 8};
+}
+
 /// tinyexr 1.0.1 multiplies a chunk's tile coordinates by the tile size in int without checks
 /// (signed overflow for hostile coordinates, found by fuzz_sky_image), so every tile's
 /// coordinates are checked here first: the offset table must point inside the file at tiles
@@ -494,10 +504,9 @@ void check_exr_tiles(const std::string& path, const EXRHeader& h, const std::vec
   if (w <= 0 || ht <= 0 || h.tile_size_x <= 0 || h.tile_size_y <= 0) throw fail("invalid data window or tile size");
   const uint64_t nx = static_cast<uint64_t>((w + h.tile_size_x - 1) / h.tile_size_x);
   const uint64_t ny = static_cast<uint64_t>((ht + h.tile_size_y - 1) / h.tile_size_y);
-  const uint64_t table = 8 + uint64_t{h.header_len};  // magic + version, header, then the offsets
-  if (table > bytes.size() || nx > (bytes.size() - table) / 8 || nx * ny > (bytes.size() - table) / 8)
-    throw fail("truncated tile offset table");
-  const uint64_t first = table + 8 * nx * ny;
+  const ExrOffsetTable table = exr_offset_table(h, bytes);
+  if (nx > table.room || nx * ny > table.room) throw fail("truncated tile offset table");
+  const uint64_t first = table.start + 8 * nx * ny;
   const auto u64 = [&bytes](uint64_t at) {
     uint64_t v = 0;
     for (int i = 7; i >= 0; --i) v = v << 8 | bytes[static_cast<size_t>(at) + static_cast<size_t>(i)];
@@ -509,7 +518,7 @@ void check_exr_tiles(const std::string& path, const EXRHeader& h, const std::vec
     return static_cast<int32_t>(v);
   };
   for (uint64_t k = 0; k < nx * ny; ++k) {
-    const uint64_t off = u64(table + 8 * k);
+    const uint64_t off = u64(table.start + 8 * k);
     if (off < first || bytes.size() < 20 || off > bytes.size() - 20)
       throw fail("tile " + std::to_string(k) + ": offset " + std::to_string(off) + " outside the pixel data");
     const int64_t x = i32(off), y = i32(off + 4), lx = i32(off + 8), ly = i32(off + 12);
@@ -548,8 +557,7 @@ std::vector<Vec3> read_exr(const std::string& path, const InputLimits& limits, i
   // there is one, unchecked: 8 bytes per claimed chunk (a 527-byte file claiming 1.8 billion
   // made it allocate 14 GB; found by fuzz_sky_image). The table must fit in the file.
   if (!h.tiled && h.chunk_count > 0) {
-    const uint64_t table = 8 + uint64_t{h.header_len};  // magic + version, header
-    if (table > bytes.size() || static_cast<uint64_t>(h.chunk_count) > (bytes.size() - table) / 8)
+    if (static_cast<uint64_t>(h.chunk_count) > exr_offset_table(h, bytes).room)
       throw file_error(path, "cannot read EXR: chunkCount " + std::to_string(h.chunk_count) +
                                  " claims more chunk offsets than the file holds (" + std::to_string(bytes.size()) +
                                  " bytes)");
