@@ -151,8 +151,6 @@ namespace lit_detail {
 
 using Fv = float __attribute__((vector_size(4 * kLitBlock)));
 using Iv = int32_t __attribute__((vector_size(4 * kLitBlock)));
-using Dv = double __attribute__((vector_size(8 * kLitBlock)));
-using Lv = int64_t __attribute__((vector_size(8 * kLitBlock)));
 
 #define SPECULA_LIT_INLINE inline __attribute__((always_inline))
 
@@ -180,7 +178,6 @@ SPECULA_LIT_INLINE To bits(const From& f) {
 }
 /// Lane by lane m ? a : b, for masks of all ones or all zeros (comparison results).
 SPECULA_LIT_INLINE Fv select(Iv m, Fv a, Fv b) { return bits<Fv>((m & bits<Iv>(a)) | (~m & bits<Iv>(b))); }
-SPECULA_LIT_INLINE Dv select(Lv m, Dv a, Dv b) { return bits<Dv>((m & bits<Lv>(a)) | (~m & bits<Lv>(b))); }
 
 /// Correctly rounded square roots (the scalar std::sqrt's bits). whitted.cpp is compiled with
 /// -fno-math-errno, which lets GCC make this one vector instruction per register.
@@ -190,23 +187,39 @@ SPECULA_LIT_INLINE Fv sqrt_lanes(Fv x) {
   return r;
 }
 
+/// Half a block's lanes in double: four doubles fill an AVX2 register. power_lanes() works on two
+/// such halves rather than one eight-double vector, which AVX2 has no register for: GCC lowered
+/// that one's 64-bit compares and selects lane by lane through the stack, and the x86-64-v3
+/// clone of render_tile took ~48% longer for the water view on an Intel Xeon (AVX-512 machines
+/// run the x86-64-v4 clone, which had no such trouble).
+using Dh = double __attribute__((vector_size(4 * kLitBlock)));
+using Lh = int64_t __attribute__((vector_size(4 * kLitBlock)));
+SPECULA_LIT_INLINE Dh select(Lh m, Dh a, Dh b) { return bits<Dh>((m & bits<Lh>(a)) | (~m & bits<Lh>(b))); }
+
 /// phong_power() of a block's lanes with whole exponents \p n (>= 1 where used): the same products
 /// in double, lane by lane; a lane whose exponent has fewer bits only squares its base further,
 /// which its result never uses.
 SPECULA_LIT_INLINE Fv power_lanes(Fv x, Iv n32) {
+  static_assert(kLitBlock == 8, "power_lanes() splits a block into two halves of four lanes");
   int32_t most = 0;
   for (size_t i = 0; i < kLitBlock; ++i) most = std::max(most, n32[i]);
-  const Lv n = __builtin_convertvector(n32, Lv);
-  Dv b = __builtin_convertvector(x, Dv);
-  const Lv none{}, one_bit = none + 1;
-  Dv unit;
-  for (size_t i = 0; i < kLitBlock; ++i) unit[i] = 1.0;
-  Dv r = select((n & one_bit) != none, b, unit);
+  Dh b0 = __builtin_convertvector(__builtin_shufflevector(x, x, 0, 1, 2, 3), Dh);
+  Dh b1 = __builtin_convertvector(__builtin_shufflevector(x, x, 4, 5, 6, 7), Dh);
+  const Lh n0 = __builtin_convertvector(__builtin_shufflevector(n32, n32, 0, 1, 2, 3), Lh);
+  const Lh n1 = __builtin_convertvector(__builtin_shufflevector(n32, n32, 4, 5, 6, 7), Lh);
+  const Lh none{}, one_bit = none + 1;
+  Dh unit;
+  for (size_t i = 0; i < kLitBlock / 2; ++i) unit[i] = 1.0;
+  Dh r0 = select((n0 & one_bit) != none, b0, unit), r1 = select((n1 & one_bit) != none, b1, unit);
   for (int k = 1; (most >> k) != 0; ++k) {
-    b = b * b;
-    r = select(((n >> k) & one_bit) != none, r * b, r);
+    b0 = b0 * b0;
+    b1 = b1 * b1;
+    r0 = select(((n0 >> k) & one_bit) != none, r0 * b0, r0);
+    r1 = select(((n1 >> k) & one_bit) != none, r1 * b1, r1);
   }
-  return __builtin_convertvector(r, Fv);
+  using Fh = float __attribute__((vector_size(2 * kLitBlock)));
+  const Fh f0 = __builtin_convertvector(r0, Fh), f1 = __builtin_convertvector(r1, Fh);
+  return __builtin_shufflevector(f0, f1, 0, 1, 2, 3, 4, 5, 6, 7);
 }
 
 }  // namespace lit_detail
