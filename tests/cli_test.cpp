@@ -487,6 +487,17 @@ TEST_F(Cli, InfoDescribesAMesh) {
   EXPECT_NE(r.out.find("bounds     [-1 -1 0] - [1 1 0]"), std::string::npos) << r.out;
 }
 
+namespace {
+/// A bench command's JSON names the processor it ran on (cli::cpu_info).
+void expect_cpu(const nlohmann::json& j) {
+  ASSERT_TRUE(j.contains("cpu")) << j.dump();
+  EXPECT_FALSE(j["cpu"]["name"].get<std::string>().empty()) << j["cpu"].dump();
+  EXPECT_GE(j["cpu"]["logical_cpus"].get<int>(), 1) << j["cpu"].dump();
+  const std::string isa = j["cpu"]["isa"].get<std::string>();
+  EXPECT_TRUE(isa == "avx512" || isa == "avx2" || isa == "sse" || isa == "scalar") << isa;
+}
+}  // namespace
+
 TEST_F(Cli, BenchTraceJsonHasEveryRayKindAndTheKernel) {
   const RunResult r = run_cli("bench trace --scene cornell --width 24 --height 16 --repeat 1 --bvh-kernel sse4 --json", dir_);
   ASSERT_EQ(r.exit_code, 0) << r.err;
@@ -495,6 +506,7 @@ TEST_F(Cli, BenchTraceJsonHasEveryRayKindAndTheKernel) {
   EXPECT_EQ(j["triangles"].get<int>() > 0, true);
   EXPECT_EQ(j["bvh"]["kernel"], "sse4");
   EXPECT_GT(j["bvh"]["sah_cost"].get<double>(), 0.0);
+  expect_cpu(j);
   std::vector<std::string> kinds;
   for (const auto& k : j["results"]) {
     kinds.push_back(k["kind"].get<std::string>());
@@ -511,6 +523,7 @@ TEST_F(Cli, BenchTraceJsonHasEveryRayKindAndTheKernel) {
   ASSERT_EQ(t.exit_code, 0) << t.err;
   for (const char* k : {"primary", "shadow", "reflection", "refraction", "diffuse", "random"})
     EXPECT_NE(t.out.find(std::string("\n") + k + " "), std::string::npos) << k << "\n" << t.out;
+  EXPECT_NE(t.out.find("\ncpu: "), std::string::npos) << t.out;  // which processor the figures are from
   EXPECT_NE(run_cli("bench trace --scene cornell --bvh-kernel avx9", dir_).exit_code, 0);
   // --mesh replaces --scene: both at once is a usage error, not one of them silently dropped.
   const RunResult both = run_cli("bench trace --scene cornell --mesh x.obj", dir_);
@@ -564,6 +577,7 @@ TEST_F(Cli, BenchRenderAndBenchSvoPrintJson) {
   EXPECT_EQ(j["scene"], "pool");
   EXPECT_EQ(j["accel"], "bvh");
   EXPECT_FALSE(j["shadows"].get<bool>());
+  expect_cpu(j);
   EXPECT_GT(j["build_ms"].get<double>(), 0.0);
   ASSERT_EQ(j["results"].size(), 2u) << r.out;
   const nlohmann::json& big = j["results"][0];
@@ -584,6 +598,8 @@ TEST_F(Cli, BenchRenderAndBenchSvoPrintJson) {
   ASSERT_NO_THROW(j = nlohmann::json::parse(s.out)) << s.out;
   ASSERT_EQ(j["depths"].size(), 2u);
   EXPECT_EQ(j["depths"][1]["depth"], 4);
+  expect_cpu(j);
+  EXPECT_NE(s.err.find("\ncpu: "), std::string::npos) << s.err;  // the header, on stderr with --json
   EXPECT_GT(j["depths"][1]["voxels"].get<int>(), j["depths"][0]["voxels"].get<int>());
   ASSERT_EQ(j["cells"].size(), 8u);  // 2 depths x 2 setups x 2 hit modes
   int with_seed = 0;

@@ -246,9 +246,10 @@ int bench_svo(const BenchSvoOptions& options) {
     bool camera_in_voxel = false;  ///< the camera sits in an occupied voxel (camera_in_voxel, cubes)
   };
   std::vector<std::vector<Cell>> cells(views.size(), std::vector<Cell>(depths.size()));
-  std::fprintf(log, "\nbench svo: %s, %d thread%s, max reflect %d / refract %d, median of %d frame%s per cell\n",
+  const CpuInfo cpu = cpu_info();
+  std::fprintf(log, "\nbench svo: %s, %d thread%s, max reflect %d / refract %d, median of %d frame%s per cell\n%s\n",
                options.scene.c_str(), threads, threads == 1 ? "" : "s", ro.max_reflect, ro.max_refract,
-               options.frames, options.frames == 1 ? "" : "s");
+               options.frames, options.frames == 1 ? "" : "s", cpu_line(cpu).c_str());
   std::fprintf(log, "  seed 000's setup: Whitted without shadow rays (every light shades every hit unoccluded;\n"
                     "    reflections and refractions traced), as the seed's section 1.7.2 describes its renderer\n"
                     "  full Whitted: the same plus a shadow ray to every light (sample) at every hit\n");
@@ -325,6 +326,7 @@ int bench_svo(const BenchSvoOptions& options) {
     nlohmann::ordered_json j;
     j["scene"] = options.scene;
     j["threads"] = threads;
+    j["cpu"] = {{"name", cpu.name}, {"logical_cpus", cpu.logical}, {"isa", cpu.isa}};
     j["frames"] = options.frames;
     j["max_reflect"] = ro.max_reflect;
     j["max_refract"] = ro.max_refract;
@@ -427,10 +429,11 @@ int bench_render(const BenchRenderOptions& options) {
       : voxels ? options.accel + " depth " + std::to_string(options.voxel.depth) + " " + to_string(options.voxel.tracer.mode)
                : options.accel;
   const bool pool = options.scene == "pool";
+  const CpuInfo cpu = cpu_info();
   if (!json) {
-    std::printf("\nbench render: %s, %s, %d thread%s, max reflect %d / refract %d, median of %d frame%s\n\n",
+    std::printf("\nbench render: %s, %s, %d thread%s, max reflect %d / refract %d, median of %d frame%s\n%s\n\n",
                 options.scene.c_str(), accel.c_str(), threads, threads == 1 ? "" : "s", ro.max_reflect,
-                ro.max_refract, options.frames, options.frames == 1 ? "" : "s");
+                ro.max_refract, options.frames, options.frames == 1 ? "" : "s", cpu_line(cpu).c_str());
     std::printf("%-10s %-10s %10s %8s %11s %9s", "camera", "size", "ms/frame", "fps", "Mrays/frm", "Mrays/s");
     if (pool) std::printf(" | seed 000 GPU fps, octree depth 1..8               | ours/seed d3  d8");
     std::printf("\n");
@@ -489,6 +492,7 @@ int bench_render(const BenchRenderOptions& options) {
     j["scene"] = options.scene;
     j["accel"] = accel;
     j["threads"] = threads;
+    j["cpu"] = {{"name", cpu.name}, {"logical_cpus", cpu.logical}, {"isa", cpu.isa}};
     j["frames"] = options.frames;
     j["shadows"] = ro.shadows;
     j["max_reflect"] = ro.max_reflect;

@@ -243,10 +243,11 @@ int bench_trace(const BenchTraceOptions& options) {
   const TriangleInput input{scene.positions, scene.indices, {}};
 
   const bool json = options.json;
+  const CpuInfo cpu = cpu_info();
   if (!json)
-    std::printf("bench trace: %s, %zu triangles, %dx%d rays from camera '%s', %d threads, median of %d\n",
+    std::printf("bench trace: %s, %zu triangles, %dx%d rays from camera '%s', %d threads, median of %d\n%s\n",
                 spec.c_str(), scene.triangle_count(), options.width, options.height,
-                scene.cameras.front().name.c_str(), threads, repeat);
+                scene.cameras.front().name.c_str(), threads, repeat, cpu_line(cpu).c_str());
 
   // Build: one thread, then all threads.
   BvhOptions bopt = options.bvh;
@@ -401,6 +402,7 @@ int bench_trace(const BenchTraceOptions& options) {
     j["camera"] = scene.cameras.front().name;
     j["threads"] = threads;
     j["repeat"] = repeat;
+    j["cpu"] = {{"name", cpu.name}, {"logical_cpus", cpu.logical}, {"isa", cpu.isa}};
     j["bvh"] = {{"kernel", kernel},          {"nodes", info.nodes},   {"leaves", info.leaves},
                 {"depth", info.max_depth},   {"sah_cost", info.sah_cost}, {"bytes", info.bytes},
                 {"bins", options.bvh.bins}, {"max_leaf", options.bvh.max_leaf_size},

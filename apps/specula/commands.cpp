@@ -5,14 +5,20 @@
 #include <tbb/task_arena.h>
 #include <unistd.h>
 
+#if defined(__x86_64__) || defined(__i386__)
+#include <cpuid.h>
+#endif
+
 #include <algorithm>
 #include <charconv>
 #include <cstdio>
+#include <cstring>
 #include <filesystem>
 #include <fstream>
 #include <iostream>
 #include <mutex>
 #include <string>
+#include <thread>
 #include <vector>
 
 #include "core/format.h"
@@ -142,6 +148,36 @@ void refuse_octree_input(const std::string& spec, const std::string& command) {
     throw Error(spec + ": an .svo file holds voxels, not triangles; '" + command +
                 "' needs a triangle scene ('specula render FILE.svo' renders it, 'specula info FILE.svo' "
                 "describes it)");
+}
+
+CpuInfo cpu_info() {
+  CpuInfo cpu;
+  cpu.logical = static_cast<int>(std::thread::hardware_concurrency());
+#if defined(__x86_64__) || defined(__i386__)
+  unsigned a = 0, b = 0, c = 0, d = 0;
+  if (__get_cpuid(0x80000000u, &a, &b, &c, &d) != 0 && a >= 0x80000004u) {
+    char brand[49] = {};
+    for (unsigned leaf = 0; leaf < 3; ++leaf) {
+      unsigned r[4] = {};
+      __get_cpuid(0x80000002u + leaf, &r[0], &r[1], &r[2], &r[3]);
+      std::memcpy(brand + 16 * leaf, r, sizeof r);
+    }
+    cpu.name = brand;
+  }
+  cpu.isa = __builtin_cpu_supports("avx512f") ? "avx512" : __builtin_cpu_supports("avx2") ? "avx2" : "sse";
+#else
+  cpu.isa = "scalar";
+#endif
+  // The brand string is padded with spaces (leading on some Intel parts).
+  const size_t first = cpu.name.find_first_not_of(' ');
+  cpu.name = first == std::string::npos ? std::string() : cpu.name.substr(first, cpu.name.find_last_not_of(' ') - first + 1);
+  if (cpu.name.empty()) cpu.name = "unknown CPU";
+  return cpu;
+}
+
+std::string cpu_line(const CpuInfo& cpu) {
+  return "cpu: " + cpu.name + ", " + std::to_string(cpu.logical) + " logical CPU" + (cpu.logical == 1 ? "" : "s") +
+         ", " + cpu.isa;
 }
 
 ProgressLine::ProgressLine(std::string label) : label_(std::move(label)), tty_(isatty(STDERR_FILENO) != 0) {}

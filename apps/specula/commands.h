@@ -188,6 +188,18 @@ bool is_svo_file(const std::string& spec);
 /// Throws for an .svo file given to \p command, which needs triangles, naming the commands
 /// that read octree files (render, info).
 void refuse_octree_input(const std::string& spec, const std::string& command);
+/// The processor the bench commands ran on, which their figures depend on (the project's
+/// machines have changed from AMD Zen 5 to Intel Xeon cores; ratios against Embree and the
+/// kernels' relative speeds differ between the two).
+struct CpuInfo {
+  std::string name;  ///< the CPUID brand string, e.g. "AMD EPYC 9R45", or "unknown CPU"
+  int logical = 0;   ///< logical CPUs (hardware threads) the system reports
+  std::string isa;   ///< the widest vector extension the kernels use here: avx512, avx2 or sse
+};
+CpuInfo cpu_info();
+/// "cpu: NAME, N logical CPUs, ISA" for the bench headers.
+std::string cpu_line(const CpuInfo& cpu);
+
 /// Whether \p camera sits in an occupied voxel of \p tracer (a voxel tracer; false for any
 /// other) so that every primary ray hits that voxel at t = 0, as at coarse depths: a ray that
 /// starts inside a voxel hits it there (in contour mode when the camera is inside its slab,
