@@ -58,6 +58,54 @@ bool one_point(const LitPoint& q, const TestLight& L, Vec3& c) {
   return render::sample_light(q, to * (1.0f / std::sqrt(d2)), L.power / d2, c);
 }
 
+/// The block code as each clone of render_tile compiles it (baseline x86-64, x86-64-v3 = AVX2,
+/// x86-64-v4 = AVX-512; flattened, as render_tile is), so every clone this CPU runs is held to
+/// sample_light()'s bits. (The x86-64-v3 one once lowered the Phong power's eight-double
+/// vectors lane by lane through the stack: same bits, but this checks the bits.)
+void evaluate_all(LitPoints& lit, const std::vector<TestLight>& lights) {
+  for (size_t li = 0; li < lights.size(); ++li)
+    lit.evaluate_light(li, lights[li].directional, lights[li].dir, lights[li].position, lights[li].power);
+}
+// Through pointers: a 32-byte vector passed by value travels in memory to baseline code and in
+// a register to AVX code (GCC's -Wpsabi note), so the clones could not share a signature.
+void power(const render::lit_detail::Fv* x, const render::lit_detail::Iv* n, render::lit_detail::Fv* out) {
+  *out = render::lit_detail::power_lanes(*x, *n);
+}
+#if defined(__GNUC__) && !defined(__clang__) && defined(__x86_64__)
+[[gnu::flatten, gnu::target("arch=x86-64-v3")]] void evaluate_all_v3(LitPoints& lit, const std::vector<TestLight>& lights) {
+  evaluate_all(lit, lights);
+}
+[[gnu::flatten, gnu::target("arch=x86-64-v4")]] void evaluate_all_v4(LitPoints& lit, const std::vector<TestLight>& lights) {
+  evaluate_all(lit, lights);
+}
+[[gnu::flatten, gnu::target("arch=x86-64-v3")]] void power_v3(const render::lit_detail::Fv* x,
+                                                               const render::lit_detail::Iv* n,
+                                                               render::lit_detail::Fv* out) {
+  power(x, n, out);
+}
+[[gnu::flatten, gnu::target("arch=x86-64-v4")]] void power_v4(const render::lit_detail::Fv* x,
+                                                               const render::lit_detail::Iv* n,
+                                                               render::lit_detail::Fv* out) {
+  power(x, n, out);
+}
+#endif
+
+struct Clone {
+  const char* name;
+  void (*evaluate)(LitPoints&, const std::vector<TestLight>&);
+  void (*power)(const render::lit_detail::Fv*, const render::lit_detail::Iv*, render::lit_detail::Fv*);
+};
+
+/// The clones this CPU can run (the same CPUID tests as render_tile's resolver makes).
+std::vector<Clone> clones() {
+  std::vector<Clone> c{{"x86-64", &evaluate_all, &power}};
+#if defined(__GNUC__) && !defined(__clang__) && defined(__x86_64__)
+  if (__builtin_cpu_supports("x86-64-v3")) c.push_back({"x86-64-v3", &evaluate_all_v3, &power_v3});
+  if (__builtin_cpu_supports("x86-64-v4")) c.push_back({"x86-64-v4", &evaluate_all_v4, &power_v4});
+#endif
+  return c;
+}
+
 }  // namespace
 
 TEST(Lighting, BlocksGiveSampleLightsBitsForEveryPoint) {
@@ -67,39 +115,41 @@ TEST(Lighting, BlocksGiveSampleLightsBitsForEveryPoint) {
   for (int k = 0; k < 4; ++k) lights.push_back({false, {}, {static_cast<float>(k) - 1.5f, 2.0f, 0.5f}, {3.0f, 2.0f, 1.0f}});
   LitPoints lit;
   size_t checked = 0, contributing = 0, one_by_one = 0;
-  for (const size_t n : {size_t{1003}, size_t{8}, size_t{5}, size_t{1003}}) {  // storage reused, shrinking and growing
-    std::vector<LitPoint> points;
-    for (size_t i = 0; i < n; ++i) points.push_back(random_point(rng, i));
-    // Special cases: the view direction equal to a light's direction (a zero half vector), a
-    // point light exactly at a point (no direction), a light straight along the normal.
-    points[1].view_dir = lights[0].dir;
-    points[2].p = lights[5].position;
-    points[3].ng_f = points[3].ns_f = lights[1].dir;
-    lit.reset(n, lights.size());
-    for (size_t i = 0; i < n; ++i) ASSERT_EQ(lit.add(points[i]), i);
-    ASSERT_EQ(lit.size(), n);
-    for (size_t li = 0; li < lights.size(); ++li)
-      lit.evaluate_light(li, lights[li].directional, lights[li].dir, lights[li].position, lights[li].power);
-    for (size_t i = 0; i < n; ++i) {
-      const LitPoint back = lit[i];
-      ASSERT_EQ(std::memcmp(&back.p, &points[i].p, sizeof(Vec3)), 0);
-      ASSERT_EQ(back.phong_int, points[i].phong_int);
-      ASSERT_EQ(back.has_spec, points[i].has_spec);
-      ASSERT_EQ(lit.one_by_one(i), points[i].has_spec && points[i].phong_int == 0);
-      if (lit.one_by_one(i)) {
-        ++one_by_one;
-        continue;
-      }
-      for (size_t li = 0; li < lights.size(); ++li) {
-        Vec3 want{}, got{};
-        const bool w = one_point(points[i], lights[li], want), g = lit.result(li, i, got);
-        ASSERT_EQ(g, w) << "point " << i << " light " << li;
-        ++checked;
-        if (!w) continue;
-        ++contributing;
-        ASSERT_EQ(std::memcmp(&got, &want, sizeof(Vec3)), 0)
-            << "point " << i << " light " << li << ": " << got.x << " " << got.y << " " << got.z << " vs " << want.x
-            << " " << want.y << " " << want.z;
+  for (const Clone& clone : clones()) {
+    SCOPED_TRACE(clone.name);
+    for (const size_t n : {size_t{1003}, size_t{8}, size_t{5}, size_t{1003}}) {  // storage reused, shrinking and growing
+      std::vector<LitPoint> points;
+      for (size_t i = 0; i < n; ++i) points.push_back(random_point(rng, i));
+      // Special cases: the view direction equal to a light's direction (a zero half vector), a
+      // point light exactly at a point (no direction), a light straight along the normal.
+      points[1].view_dir = lights[0].dir;
+      points[2].p = lights[5].position;
+      points[3].ng_f = points[3].ns_f = lights[1].dir;
+      lit.reset(n, lights.size());
+      for (size_t i = 0; i < n; ++i) ASSERT_EQ(lit.add(points[i]), i);
+      ASSERT_EQ(lit.size(), n);
+      clone.evaluate(lit, lights);
+      for (size_t i = 0; i < n; ++i) {
+        const LitPoint back = lit[i];
+        ASSERT_EQ(std::memcmp(&back.p, &points[i].p, sizeof(Vec3)), 0);
+        ASSERT_EQ(back.phong_int, points[i].phong_int);
+        ASSERT_EQ(back.has_spec, points[i].has_spec);
+        ASSERT_EQ(lit.one_by_one(i), points[i].has_spec && points[i].phong_int == 0);
+        if (lit.one_by_one(i)) {
+          ++one_by_one;
+          continue;
+        }
+        for (size_t li = 0; li < lights.size(); ++li) {
+          Vec3 want{}, got{};
+          const bool w = one_point(points[i], lights[li], want), g = lit.result(li, i, got);
+          ASSERT_EQ(g, w) << "point " << i << " light " << li;
+          ++checked;
+          if (!w) continue;
+          ++contributing;
+          ASSERT_EQ(std::memcmp(&got, &want, sizeof(Vec3)), 0)
+              << "point " << i << " light " << li << ": " << got.x << " " << got.y << " " << got.z << " vs " << want.x
+              << " " << want.y << " " << want.z;
+        }
       }
     }
   }
@@ -114,17 +164,20 @@ TEST(Lighting, BlockPowerIsPhongPowerForEveryWholeExponent) {
   std::uniform_real_distribution<float> u(0.0f, 1.0f);
   using render::lit_detail::Fv;
   using render::lit_detail::Iv;
-  for (int32_t e = 1; e <= static_cast<int32_t>(kMaxSquaringExponent); e += static_cast<int32_t>(render::kLitBlock)) {
-    Fv x;
-    Iv n;
-    for (int k = 0; k < static_cast<int>(render::kLitBlock); ++k) {  // different exponents per block, the largest last
-      x[k] = k == 0 ? 1.0f : (k == 1 ? 0.0f : u(rng));
-      n[k] = std::min<int32_t>(e + k, static_cast<int32_t>(kMaxSquaringExponent));
-    }
-    const Fv p = render::lit_detail::power_lanes(x, n);
-    for (int k = 0; k < static_cast<int>(render::kLitBlock); ++k) {
-      const float want = phong_power(x[k], static_cast<float>(n[k]), static_cast<uint32_t>(n[k]));
-      ASSERT_EQ(std::memcmp(&p[k], &want, sizeof want), 0) << x[k] << "^" << n[k];
+  for (const Clone& clone : clones()) {
+    for (int32_t e = 1; e <= static_cast<int32_t>(kMaxSquaringExponent); e += static_cast<int32_t>(render::kLitBlock)) {
+      Fv x;
+      Iv n;
+      for (int k = 0; k < static_cast<int>(render::kLitBlock); ++k) {  // different exponents per block, the largest last
+        x[k] = k == 0 ? 1.0f : (k == 1 ? 0.0f : u(rng));
+        n[k] = std::min<int32_t>(e + k, static_cast<int32_t>(kMaxSquaringExponent));
+      }
+      Fv p;
+      clone.power(&x, &n, &p);
+      for (int k = 0; k < static_cast<int>(render::kLitBlock); ++k) {
+        const float want = phong_power(x[k], static_cast<float>(n[k]), static_cast<uint32_t>(n[k]));
+        ASSERT_EQ(std::memcmp(&p[k], &want, sizeof want), 0) << clone.name << ": " << x[k] << "^" << n[k];
+      }
     }
   }
 }
