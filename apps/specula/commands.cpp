@@ -157,10 +157,10 @@ CpuInfo cpu_info() {
   unsigned a = 0, b = 0, c = 0, d = 0;
   if (__get_cpuid(0x80000000u, &a, &b, &c, &d) != 0 && a >= 0x80000004u) {
     char brand[49] = {};
-    for (unsigned leaf = 0; leaf < 3; ++leaf) {
+    for (size_t leaf = 0; leaf < 3; ++leaf) {
       unsigned r[4] = {};
-      __get_cpuid(0x80000002u + leaf, &r[0], &r[1], &r[2], &r[3]);
-      std::memcpy(brand + 16 * leaf, r, sizeof r);
+      __get_cpuid(0x80000002u + static_cast<unsigned>(leaf), &r[0], &r[1], &r[2], &r[3]);
+      std::memcpy(brand + sizeof r * leaf, r, sizeof r);
     }
     cpu.name = brand;
   }
