@@ -192,7 +192,7 @@ void refuse_octree_input(const std::string& spec, const std::string& command);
 /// machines have changed from AMD Zen 5 to Intel Xeon cores; ratios against Embree and the
 /// kernels' relative speeds differ between the two).
 struct CpuInfo {
-  std::string name;  ///< the CPUID brand string, e.g. "AMD EPYC 9R45", or "unknown CPU"
+  std::string name;  ///< the CPUID brand string, e.g. "Intel(R) Xeon(R) Processor", or "unknown CPU"
   int logical = 0;   ///< logical CPUs (hardware threads) the system reports
   std::string isa;   ///< the widest vector extension the kernels use here: avx512, avx2 or sse
 };
