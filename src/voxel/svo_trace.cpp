@@ -247,7 +247,6 @@ int cpu_packet_width() {
   static const int width = [] {
     if (!__builtin_cpu_supports("avx2") || !__builtin_cpu_supports("popcnt") || !__builtin_cpu_supports("bmi")) return 1;
     return __builtin_cpu_supports("avx512f") ? 16 : 8;
-    return 1;
   }();
   return width;
 }
