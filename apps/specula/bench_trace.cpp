@@ -325,10 +325,7 @@ int bench_trace(const BenchTraceOptions& options) {
   if (with_embree) {
     for (int i = 0; i < repeat; ++i) {
       double ms = 0.0;
-      // Embree's "threads=1" does not hold its TBB build to one thread (its 1T build took the
-      // 2T time on two cores): the build runs in a one-thread arena, as ours does with
-      // BvhOptions::threads = 1.
-      tbb::task_arena(1).execute([&] { embree1 = std::make_unique<EmbreeTracer>(input, 1, &ms); });
+      embree1 = std::make_unique<EmbreeTracer>(input, 1, &ms);
       e1.push_back(ms);
       embreen = std::make_unique<EmbreeTracer>(input, threads, &ms);
       en.push_back(ms);

@@ -20,7 +20,8 @@ namespace specula::cli {
 /// occlusion query (0 or 1): Embree sees every triangle as opaque here.
 class EmbreeTracer final : public Tracer {
  public:
-  /// \p threads: 0 = Embree's default (all hardware threads), else "threads=N".
+  /// \p threads: 0 = Embree's default (all hardware threads), else "threads=N" and the build
+  /// run in a TBB arena of N threads.
   /// \p build_ms receives the rtcCommitScene time.
   EmbreeTracer(const TriangleInput& input, int threads, double* build_ms = nullptr);
   ~EmbreeTracer() override;
