@@ -326,7 +326,7 @@ int bench_svo(const BenchSvoOptions& options) {
     nlohmann::ordered_json j;
     j["scene"] = options.scene;
     j["threads"] = threads;
-    j["cpu"] = {{"name", cpu.name}, {"logical_cpus", cpu.logical}, {"isa", cpu.isa}};
+    j["cpu"] = cpu_json(cpu);
     j["frames"] = options.frames;
     j["max_reflect"] = ro.max_reflect;
     j["max_refract"] = ro.max_refract;
@@ -492,7 +492,7 @@ int bench_render(const BenchRenderOptions& options) {
     j["scene"] = options.scene;
     j["accel"] = accel;
     j["threads"] = threads;
-    j["cpu"] = {{"name", cpu.name}, {"logical_cpus", cpu.logical}, {"isa", cpu.isa}};
+    j["cpu"] = cpu_json(cpu);
     j["frames"] = options.frames;
     j["shadows"] = ro.shadows;
     j["max_reflect"] = ro.max_reflect;

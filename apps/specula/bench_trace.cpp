@@ -402,7 +402,7 @@ int bench_trace(const BenchTraceOptions& options) {
     j["camera"] = scene.cameras.front().name;
     j["threads"] = threads;
     j["repeat"] = repeat;
-    j["cpu"] = {{"name", cpu.name}, {"logical_cpus", cpu.logical}, {"isa", cpu.isa}};
+    j["cpu"] = cpu_json(cpu);
     j["bvh"] = {{"kernel", kernel},          {"nodes", info.nodes},   {"leaves", info.leaves},
                 {"depth", info.max_depth},   {"sah_cost", info.sah_cost}, {"bytes", info.bytes},
                 {"bins", options.bvh.bins}, {"max_leaf", options.bvh.max_leaf_size},

@@ -5,6 +5,8 @@
 #include <tbb/task_arena.h>
 #include <unistd.h>
 
+#include <nlohmann/json.hpp>
+
 #if defined(__x86_64__) || defined(__i386__)
 #include <cpuid.h>
 #endif
@@ -178,6 +180,10 @@ CpuInfo cpu_info() {
 std::string cpu_line(const CpuInfo& cpu) {
   return "cpu: " + cpu.name + ", " + std::to_string(cpu.logical) + " logical CPU" + (cpu.logical == 1 ? "" : "s") +
          ", " + cpu.isa;
+}
+
+nlohmann::ordered_json cpu_json(const CpuInfo& cpu) {
+  return {{"name", cpu.name}, {"logical_cpus", cpu.logical}, {"isa", cpu.isa}};
 }
 
 ProgressLine::ProgressLine(std::string label) : label_(std::move(label)), tty_(isatty(STDERR_FILENO) != 0) {}

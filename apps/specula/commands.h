@@ -9,6 +9,8 @@
 #include <string>
 #include <vector>
 
+#include <nlohmann/json_fwd.hpp>
+
 #include "specula/accel.h"
 #include "specula/load.h"
 #include "specula/render.h"
@@ -199,6 +201,8 @@ struct CpuInfo {
 CpuInfo cpu_info();
 /// "cpu: NAME, N logical CPUs, ISA" for the bench headers.
 std::string cpu_line(const CpuInfo& cpu);
+/// The bench JSON's "cpu" object: name, logical_cpus, isa.
+nlohmann::ordered_json cpu_json(const CpuInfo& cpu);
 
 /// Whether \p camera sits in an occupied voxel of \p tracer (a voxel tracer; false for any
 /// other) so that every primary ray hits that voxel at t = 0, as at coarse depths: a ray that
