@@ -162,9 +162,10 @@ inline bool cell_span(const LocalRay& r, const uint32_t c[3], CellSpan& s) {
 
 /// Outward normal of the face normal to \p axis through which the ray enters (against the ray).
 inline Vec3 face_normal(const LocalRay& r, int axis) {
-  Vec3 n;
-  n[axis] = ((r.mirror >> axis) & 1u) ? 1.0f : -1.0f;
-  return n;
+  // Per component by selects, not Vec3::operator[] (a chain of branches on the axis, which
+  // varies from pixel to pixel: mispredicted).
+  const float s = ((r.mirror >> axis) & 1u) ? 1.0f : -1.0f;
+  return Vec3{axis == 0 ? s : 0.0f, axis == 1 ? s : 0.0f, axis == 2 ? s : 0.0f};
 }
 
 /// Normal for a ray starting inside a voxel: -sign(d_k) e_k, k = axis of the largest |d|.
