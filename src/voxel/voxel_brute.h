@@ -203,7 +203,10 @@ inline bool hit_span(const LocalRay& r, const uint32_t c[3], const VoxelAttribut
     s0 = -kInf;
     s1 = kInf;
   } else {
-    const float ta = (klo - no) / nd, tb = (khi - no) / nd;
+    // One division for both planes (the octree's packets divide a vector of 16 lanes here,
+    // whose latency and throughput are those of a dozen multiplications).
+    const float inv_nd = 1.0f / nd;
+    const float ta = (klo - no) * inv_nd, tb = (khi - no) * inv_nd;
     s0 = std::min(ta, tb);
     s1 = std::max(ta, tb);
   }
