@@ -69,7 +69,7 @@ class LitPoints {
   void reset(size_t n, size_t lights) {
     n_ = 0;
     stride_ = (n + kLitBlock - 1) / kLitBlock * kLitBlock;
-    grow(rows_, kRows * stride_);
+    grow(rows_, kRows * stride_);  // stride_ is a whole number of blocks
     grow(power_, stride_);
     grow(spec_, stride_);
     grow(exponent_, stride_);
@@ -82,11 +82,11 @@ class LitPoints {
     const size_t j = n_++;
     const Vec3* v[7] = {&q.p, &q.ng_f, &q.ns_f, &q.view_dir, &q.weight, &q.kd, &q.specular};
     for (int k = 0; k < 7; ++k) {
-      row(3 * k)[j] = v[k]->x;
-      row(3 * k + 1)[j] = v[k]->y;
-      row(3 * k + 2)[j] = v[k]->z;
+      cell(3 * k, j) = v[k]->x;
+      cell(3 * k + 1, j) = v[k]->y;
+      cell(3 * k + 2, j) = v[k]->z;
     }
-    row(kZero)[j] = q.zero_below;
+    cell(kZero, j) = q.zero_below;
     exponent_[j] = q.exponent;
     power_[j] = static_cast<int32_t>(q.phong_int);
     spec_[j] = q.has_spec ? -1 : 0;
@@ -98,8 +98,8 @@ class LitPoints {
   LitPoint operator[](size_t j) const {
     LitPoint q;
     Vec3* v[7] = {&q.p, &q.ng_f, &q.ns_f, &q.view_dir, &q.weight, &q.kd, &q.specular};
-    for (int k = 0; k < 7; ++k) *v[k] = {row(3 * k)[j], row(3 * k + 1)[j], row(3 * k + 2)[j]};
-    q.zero_below = row(kZero)[j];
+    for (int k = 0; k < 7; ++k) *v[k] = {cell(3 * k, j), cell(3 * k + 1, j), cell(3 * k + 2, j)};
+    q.zero_below = cell(kZero, j);
     q.exponent = exponent_[j];
     q.phong_int = static_cast<uint32_t>(power_[j]);
     q.has_spec = spec_[j] != 0;
@@ -107,8 +107,8 @@ class LitPoints {
   }
 
   /// The position and the geometric normal of point \p j (what a shadow ray starts from).
-  Vec3 position(size_t j) const { return {row(0)[j], row(1)[j], row(2)[j]}; }
-  Vec3 normal(size_t j) const { return {row(3)[j], row(4)[j], row(5)[j]}; }
+  Vec3 position(size_t j) const { return {cell(0, j), cell(1, j), cell(2, j)}; }
+  Vec3 normal(size_t j) const { return {cell(3, j), cell(4, j), cell(5, j)}; }
 
   /// Whether point \p j goes through sample_light() one by one: a specular lobe whose exponent
   /// is not whole (powf, which has no SIMD form here).
@@ -133,8 +133,14 @@ class LitPoints {
   static void grow(std::vector<T>& v, size_t n) {
     if (v.size() < n) v.resize(n);
   }
-  float* row(int r) { return rows_.data() + static_cast<size_t>(r) * stride_; }
-  const float* row(int r) const { return rows_.data() + static_cast<size_t>(r) * stride_; }
+  /// The rows are stored block by block (kLitBlock points: all kRows rows of their lanes, then
+  /// the next block's), so a point's rows are at fixed offsets from its first: add() writes them
+  /// without a multiplication by the stride per row, and a block's row is still one vector.
+  static size_t offset(int r, size_t j) {
+    return (j / kLitBlock) * (kRows * kLitBlock) + static_cast<size_t>(r) * kLitBlock + j % kLitBlock;
+  }
+  float& cell(int r, size_t j) { return rows_[offset(r, j)]; }
+  float cell(int r, size_t j) const { return rows_[offset(r, j)]; }
 
   size_t n_ = 0, stride_ = 0;
   std::vector<float> rows_;
@@ -233,7 +239,7 @@ inline void LitPoints::evaluate_light(size_t light, bool directional, const Vec3
   float* const cz = cy + stride_;
   int32_t* const ok = ok_.data() + light * stride_;
   for (size_t j = 0; j < n_; j += kLitBlock) {
-    const auto at = [&](int r) { return load(row(r) + j); };
+    const auto at = [&](int r) { return load(rows_.data() + offset(r, j)); };
     const Fv px = at(0), py = at(1), pz = at(2);
     // The light's direction and irradiance at the points (sample_light's l and irradiance).
     Fv lx, ly, lz, ix, iy, iz;
