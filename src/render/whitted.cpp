@@ -585,7 +585,10 @@ Surface voxel_surface(const Context& ctx, Scratch& s, const Ray& ray, const Hit&
 void shade_hit(const Context& ctx, Scratch& s, const Ray& ray, const PathState& seg, const Vec3& weight,
                const Surface& sf, uint32_t leave) {
   const Vec3& p = sf.p;
-  const Vec3 d = normalize(ray.dir);
+  // Every wavefront ray is unit length as it is made (the camera, reflect() and refract()
+  // normalize their directions): normalizing it again here only cost a square root and a
+  // division per hit.
+  const Vec3& d = ray.dir;
   const Vec3& ng = sf.ng;
   const bool front = dot(d, ng) < 0.0f;  // arriving on the side the winding faces
   const Vec3 ng_f = front ? ng : -ng;    // geometric normal facing the incoming ray
@@ -831,7 +834,7 @@ void render_tile(const Context& ctx, const SkyEval& sky, Scratch& s, const Pinho
       Vec3 weight = seg.weight;
       const int top = seg.media.top();
       // Beer-Lambert over the segment (a factor of exactly 1 outside absorbing media: skipped).
-      if (ctx.absorbs(top)) weight *= medium_attenuation(ctx, top, valid ? hit.t * length(ray.dir) : kInf);
+      if (ctx.absorbs(top)) weight *= medium_attenuation(ctx, top, valid ? hit.t : kInf);  // unit directions
       const size_t gp = seg.global;
       if (seg.primary()) {
         if (ctx.want_depth) ctx.film.depth[gp] = valid ? hit.t * length(ray.dir) : kInf;
