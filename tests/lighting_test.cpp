@@ -179,5 +179,21 @@ TEST(Lighting, BlockPowerIsPhongPowerForEveryWholeExponent) {
         ASSERT_EQ(std::memcmp(&p[k], &want, sizeof want), 0) << clone.name << ": " << x[k] << "^" << n[k];
       }
     }
+    // One exponent in every lane (a block of hits on one material), which power_lanes() raises
+    // with the exponent's bits tested once per block.
+    for (int32_t e = 1; e <= static_cast<int32_t>(kMaxSquaringExponent); ++e) {
+      Fv x;
+      Iv n;
+      for (int k = 0; k < static_cast<int>(render::kLitBlock); ++k) {
+        x[k] = k == 0 ? 1.0f : (k == 1 ? 0.0f : u(rng));
+        n[k] = e;
+      }
+      Fv p;
+      clone.power(&x, &n, &p);
+      for (int k = 0; k < static_cast<int>(render::kLitBlock); ++k) {
+        const float want = phong_power(x[k], static_cast<float>(e), static_cast<uint32_t>(e));
+        ASSERT_EQ(std::memcmp(&p[k], &want, sizeof want), 0) << clone.name << ": " << x[k] << "^" << e << " (uniform)";
+      }
+    }
   }
 }
