@@ -61,7 +61,7 @@ inline bool sample_light(const LitPoint& q, const Vec3& l, const Vec3& irradianc
 /// slower on one pinned thread of the Zen 5 machine: 74.7 against 58.5 ms.)
 inline constexpr size_t kLitBlock = 8;
 
-/// The lit points of one wavefront, structure of arrays, and per light the contributions
+/// The lit points of one wavefront, structure of arrays in blocks, and per light the contributions
 /// evaluate_light() found for them. Storage only grows: reset() for every wavefront.
 class LitPoints {
  public:
