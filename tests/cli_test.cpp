@@ -614,6 +614,18 @@ TEST_F(Cli, BenchRenderAndBenchSvoPrintJson) {
     EXPECT_FALSE(c["camera_in_voxel"].get<bool>()) << c.dump();  // the water camera is above the pool
   }
   EXPECT_EQ(with_seed, 4);  // the seed's setup, both hit modes, both depths
+  // The score counts those cells, ours faster where the fps beat the seed's.
+  int faster = 0;
+  for (const auto& c : j["cells"])
+    if (c.contains("seed000_gpu_fps") && c["fps"].get<double>() > c["seed000_gpu_fps"].get<double>()) ++faster;
+  const nlohmann::json& score = j["seed000_score"];
+  EXPECT_EQ(score["cells"], 4) << score.dump();
+  EXPECT_EQ(score["cubes_cells"], 2) << score.dump();
+  EXPECT_EQ(score["contours_cells"], 2) << score.dump();
+  EXPECT_EQ(score["faster"], faster) << score.dump();
+  EXPECT_EQ(score["cubes_faster"].get<int>() + score["contours_faster"].get<int>(), faster) << score.dump();
+  EXPECT_EQ(score["camera_outside_voxels_cells"], 4) << score.dump();  // the water camera is above the pool
+  EXPECT_EQ(score["camera_outside_voxels_faster"], faster) << score.dump();
 }
 
 TEST_F(Cli, RenderTracesVoxelsWithEveryVoxelStructure) {
@@ -721,6 +733,14 @@ TEST_F(Cli, BenchSvoPrintsSeedTablesContourCostAndPsnr) {
   for (const char* want : {"fps, voxel cubes", "fps, contours", "contour cost", "PSNR (dB) of the cube render",
                            "water (16x12)", "depth 2:", "depth 3:"})
     EXPECT_NE(r.out.find(want), std::string::npos) << want << "\n" << r.out;
+  // No seed figure at 16x12: no score line. At 640x480 the seed has one per depth and hit mode.
+  EXPECT_EQ(r.out.find("faster than seed 000's GPU"), std::string::npos) << r.out;
+  const RunResult s = run_cli("bench svo --cameras water --sizes 640x480 --depths 3 --frames 1", dir_);
+  ASSERT_EQ(s.exit_code, 0) << s.err;
+  const size_t at = s.out.find("faster than seed 000's GPU in ");
+  ASSERT_NE(at, std::string::npos) << s.out;
+  EXPECT_NE(s.out.find(" of 2 cells (cubes ", at), std::string::npos) << s.out;
+  EXPECT_NE(s.out.find("with the camera outside the voxels, ", at), std::string::npos) << s.out;
   EXPECT_NE(run_cli("bench svo --depths 0", dir_).exit_code, 0);
 }
 

@@ -295,6 +295,29 @@ int bench_svo(const BenchSvoOptions& options) {
     }
   }
 
+  // The score against seed 000's table: cells with a seed figure where ours is faster, in all
+  // and outside the camera-inside cells (which time something else than the view).
+  struct Score {
+    int cells[2] = {}, faster[2] = {};  ///< [0 = cubes, 1 = contours]
+    int outside_cells = 0, outside_faster = 0;
+  } score;
+  for (size_t vi = 0; vi < views.size(); ++vi) {
+    const auto row = seed_row(options.scene, views[vi].camera, views[vi].size);
+    for (size_t di = 0; di < depths.size(); ++di) {
+      const double seed = seed_fps_at(row, depths[di]);
+      if (!(seed > 0)) continue;
+      for (const int m : {0, 1}) {
+        const bool faster = cells[vi][di].fps[kSeed][m] > seed;
+        ++score.cells[m];
+        score.faster[m] += faster ? 1 : 0;
+        if (!cells[vi][di].camera_in_voxel) {
+          ++score.outside_cells;
+          score.outside_faster += faster ? 1 : 0;
+        }
+      }
+    }
+  }
+
   if (json) {
     nlohmann::ordered_json out = nlohmann::ordered_json::array();
     for (size_t vi = 0; vi < views.size(); ++vi) {
@@ -334,6 +357,14 @@ int bench_svo(const BenchSvoOptions& options) {
                    {"full_whitted", "the same plus a shadow ray to every light sample at every hit"}};
     j["depths"] = std::move(depth_rows);
     j["cells"] = std::move(out);
+    j["seed000_score"] = {{"cells", score.cells[0] + score.cells[1]},
+                          {"faster", score.faster[0] + score.faster[1]},
+                          {"cubes_cells", score.cells[0]},
+                          {"cubes_faster", score.faster[0]},
+                          {"contours_cells", score.cells[1]},
+                          {"contours_faster", score.faster[1]},
+                          {"camera_outside_voxels_cells", score.outside_cells},
+                          {"camera_outside_voxels_faster", score.outside_faster}};
     std::printf("%s\n", j.dump(2).c_str());
     return 0;
   }
@@ -386,6 +417,11 @@ int bench_svo(const BenchSvoOptions& options) {
     }
     print_camera_in_voxel_note(list);
   }
+  if (score.cells[0] + score.cells[1] > 0)
+    std::printf("\nfaster than seed 000's GPU in %d of %d cells (cubes %d of %d, contours %d of %d); "
+                "with the camera outside the voxels, %d of %d\n",
+                score.faster[0] + score.faster[1], score.cells[0] + score.cells[1], score.faster[0], score.cells[0],
+                score.faster[1], score.cells[1], score.outside_faster, score.outside_cells);
   print_table("CPU ms per frame (all threads), seed 000's setup, voxel cubes: the work behind the fps above, which "
               "on a shared machine also depends on the other load",
               [](const Cell& c) { return c.cpu_ms[kSeed][0]; }, "%.1f", false);
