@@ -1,12 +1,16 @@
 // The block evaluation of lights (render::LitPoints) against render::sample_light(), the
-// one-point formula: the same contributions bit for bit, for every kind of point.
+// one-point formula: the same contributions bit for bit, for every kind of point; and the block
+// evaluation of mirror and refraction directions (render::bounce_block()) against
+// render::bounce_reference().
 #include <gtest/gtest.h>
 
 #include <cmath>
 #include <cstring>
+#include <limits>
 #include <random>
 #include <vector>
 
+#include "render/bounce.h"
 #include "render/lighting.h"
 
 using namespace specula;
@@ -71,7 +75,16 @@ void evaluate_all(LitPoints& lit, const std::vector<TestLight>& lights) {
 void power(const render::lit_detail::Fv* x, const render::lit_detail::Iv* n, render::lit_detail::Fv* out) {
   *out = render::lit_detail::power_lanes(*x, *n);
 }
+void bounce_all(float* rows, size_t stride, size_t n) {
+  for (size_t j = 0; j < n; j += render::kLitBlock) render::bounce_block(rows, stride, j);
+}
 #if defined(__GNUC__) && !defined(__clang__) && defined(__x86_64__)
+[[gnu::flatten, gnu::target("arch=x86-64-v3")]] void bounce_all_v3(float* rows, size_t stride, size_t n) {
+  bounce_all(rows, stride, n);
+}
+[[gnu::flatten, gnu::target("arch=x86-64-v4")]] void bounce_all_v4(float* rows, size_t stride, size_t n) {
+  bounce_all(rows, stride, n);
+}
 [[gnu::flatten, gnu::target("arch=x86-64-v3")]] void evaluate_all_v3(LitPoints& lit, const std::vector<TestLight>& lights) {
   evaluate_all(lit, lights);
 }
@@ -94,14 +107,15 @@ struct Clone {
   const char* name;
   void (*evaluate)(LitPoints&, const std::vector<TestLight>&);
   void (*power)(const render::lit_detail::Fv*, const render::lit_detail::Iv*, render::lit_detail::Fv*);
+  void (*bounce)(float*, size_t, size_t);
 };
 
 /// The clones this CPU can run (the same CPUID tests as render_tile's resolver makes).
 std::vector<Clone> clones() {
-  std::vector<Clone> c{{"x86-64", &evaluate_all, &power}};
+  std::vector<Clone> c{{"x86-64", &evaluate_all, &power, &bounce_all}};
 #if defined(__GNUC__) && !defined(__clang__) && defined(__x86_64__)
-  if (__builtin_cpu_supports("x86-64-v3")) c.push_back({"x86-64-v3", &evaluate_all_v3, &power_v3});
-  if (__builtin_cpu_supports("x86-64-v4")) c.push_back({"x86-64-v4", &evaluate_all_v4, &power_v4});
+  if (__builtin_cpu_supports("x86-64-v3")) c.push_back({"x86-64-v3", &evaluate_all_v3, &power_v3, &bounce_all_v3});
+  if (__builtin_cpu_supports("x86-64-v4")) c.push_back({"x86-64-v4", &evaluate_all_v4, &power_v4, &bounce_all_v4});
 #endif
   return c;
 }
@@ -187,4 +201,80 @@ TEST(Lighting, BlockPowerIsPhongPowerForEveryWholeExponent) {
     for (int32_t e = 1; e <= kMost && !HasFatalFailure(); e += static_cast<int32_t>(render::kLitBlock)) check(clone, e, 1);
     for (int32_t e = 1; e <= kMost && !HasFatalFailure(); ++e) check(clone, e, 0);
   }
+}
+
+/// Same bits, or both NaN (a NaN direction's payload is not part of the contract: such rays
+/// miss; none arises from finite, unit inputs).
+::testing::AssertionResult same_bits(float got, float want) {
+  if ((std::isnan(got) && std::isnan(want)) || std::memcmp(&got, &want, sizeof got) == 0)
+    return ::testing::AssertionSuccess();
+  return ::testing::AssertionFailure() << got << " vs " << want;
+}
+
+TEST(Lighting, BounceBlocksGiveTheScalarDirectionsBitForBit) {
+  const float kNaN = std::numeric_limits<float>::quiet_NaN();
+  std::mt19937 rng(11);
+  std::uniform_real_distribution<float> u(0.0f, 1.0f);
+  static const float kEta[] = {1.0f, 1.0f / 1.33f, 1.33f, 1.0f / 1.5f, 1.5f, 2.42f, 1.0f / 2.42f, 0.5f};
+  size_t refracted = 0, total_reflection = 0, geometric_mirror = 0;
+  for (const Clone& clone : clones()) {
+    SCOPED_TRACE(clone.name);
+    for (const size_t n : {size_t{4001}, size_t{8}, size_t{3}}) {
+      const size_t stride = (n + render::kLitBlock - 1) / render::kLitBlock * render::kLitBlock;
+      std::vector<float> rows(render::kBounceRows * stride, 0.0f);
+      std::vector<Vec3> d(n), sn(n), g(n);
+      std::vector<float> eta(n);
+      for (size_t i = 0; i < n; ++i) {
+        // As the integrator records them: unit directions, normals facing the incoming ray (the
+        // shading normal bent off the geometric one), and every kind of interface.
+        g[i] = random_unit(rng);
+        d[i] = random_unit(rng);
+        if (dot(d[i], g[i]) > 0.0f) d[i] = -d[i];
+        sn[i] = i % 4 == 0 ? g[i] : normalize(g[i] + random_unit(rng) * (i % 3 == 0 ? 1.5f : 0.3f));
+        eta[i] = kEta[i % (sizeof kEta / sizeof kEta[0])];
+        switch (i % 29) {  // the edges of every formula
+          case 1: d[i] = -sn[i]; break;                                    // normal incidence
+          case 2: d[i] = normalize(cross(sn[i], g[i]) + sn[i] * 1e-8f); break;  // grazing
+          case 3: sn[i] = Vec3{}; break;                                   // no normal at all
+          case 4: d[i] = Vec3{kNaN, 0.0f, 1.0f}; break;
+          case 5: eta[i] = kNaN; break;
+          case 6: d[i] = Vec3{kInf, 0.0f, 0.0f}; break;
+          case 7: eta[i] = 0.0f; break;
+          case 8: d[i] = sn[i]; break;                                     // leaving along the normal
+          default: break;
+        }
+        const float in[render::kBounceInputs] = {d[i].x,  d[i].y, d[i].z, sn[i].x, sn[i].y,
+                                                 sn[i].z, g[i].x, g[i].y, g[i].z,  eta[i]};
+        for (int r = 0; r < render::kBounceInputs; ++r) rows[static_cast<size_t>(r) * stride + i] = in[r];
+      }
+      clone.bounce(rows.data(), stride, n);
+      for (size_t i = 0; i < n; ++i) {
+        float fr;
+        bool ok;
+        Vec3 t, mirror;
+        render::bounce_reference(d[i], sn[i], g[i], eta[i], fr, ok, t, mirror);
+        const auto at = [&](int r) { return rows[static_cast<size_t>(r) * stride + i]; };
+        int32_t ok_bits;
+        std::memcpy(&ok_bits, &rows[static_cast<size_t>(render::kBounceOk) * stride + i], sizeof ok_bits);
+        ASSERT_TRUE(same_bits(at(render::kBounceFr), fr)) << "hit " << i;
+        ASSERT_EQ(ok_bits, ok ? -1 : 0) << "hit " << i;
+        if (ok) {
+          ++refracted;
+          ASSERT_TRUE(same_bits(at(render::kBounceTx), t.x)) << "hit " << i;
+          ASSERT_TRUE(same_bits(at(render::kBounceTy), t.y)) << "hit " << i;
+          ASSERT_TRUE(same_bits(at(render::kBounceTz), t.z)) << "hit " << i;
+        }
+        total_reflection += fr == 1.0f;
+        geometric_mirror += dot(reflect(d[i], sn[i]), g[i]) <= 0.0f;
+        ASSERT_TRUE(same_bits(at(render::kBounceMx), mirror.x)) << "hit " << i;
+        ASSERT_TRUE(same_bits(at(render::kBounceMy), mirror.y)) << "hit " << i;
+        ASSERT_TRUE(same_bits(at(render::kBounceMz), mirror.z)) << "hit " << i;
+      }
+    }
+  }
+  // Every branch was taken: refraction kept, total internal reflection, the mirror direction
+  // about the geometric normal.
+  EXPECT_GT(refracted, 100u);
+  EXPECT_GT(total_reflection, 100u);
+  EXPECT_GT(geometric_mirror, 10u);
 }

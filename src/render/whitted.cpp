@@ -28,6 +28,7 @@
 #include <string>
 
 #include "core/hash.h"
+#include "render/bounce.h"
 #include "render/fresnel.h"
 #include "render/lighting.h"
 #include "render/phong.h"
@@ -210,6 +211,19 @@ struct ShadeMaterial {
   bool lit = false;  ///< whether a light can add anything (kd or the specular colour non-zero)
 };
 
+/// A mirror or dielectric hit, recorded by shade_hit(); its directions are evaluated for the whole
+/// wavefront (render::bounce_block(), rows in Scratch::bounce_rows, same index) and its rays made
+/// by bounce(), both after the shading loop (see render_tile).
+struct Bounce {
+  Vec3 p;       ///< hit point
+  Vec3 weight;  ///< the segment's throughput after Beer-Lambert
+  float refl, trans;  ///< the material's mirror and dielectric weights
+  float eta;          ///< relative index of refraction (incident over transmitted side)
+  uint32_t ray;       ///< wavefront index of the segment (its ray and PathState)
+  uint32_t leave;     ///< PathState::leave of the rays it makes
+  MediumStack media;  ///< the media a refraction ray is in (trans > 0 only)
+};
+
 /// A shadow ray's payload: the radiance it brings to its pixel when unoccluded.
 struct ShadowRequest {
   Vec3 contrib;
@@ -251,6 +265,10 @@ struct Scratch {
   static constexpr uint32_t kNotLit = 0xFFFFFFFFu;
   std::vector<Addition> additions;
   size_t n_additions = 0;
+  std::vector<Bounce> bounces;  ///< the wavefront's mirror / dielectric hits, in shading order
+  size_t n_bounces = 0;
+  std::vector<float> bounce_rows;  ///< their render::BounceRow rows, bounce_stride floats each
+  size_t bounce_stride = 0;
   render::LitPoints lit;  ///< the wavefront's lit hits
   std::vector<uint32_t> lit_global;   ///< per lit hit: its pixel's index in the film
   std::vector<uint16_t> lit_history;  ///< per lit hit: its path's history
@@ -580,10 +598,10 @@ Surface voxel_surface(const Context& ctx, Scratch& s, const Ray& ray, const Hit&
   return sf;
 }
 
-/// Shades one hit: emission, ambient and lights go to the pixel / shadow batch, mirror and
-/// refraction rays to the next wavefront.
-void shade_hit(const Context& ctx, Scratch& s, const Ray& ray, const PathState& seg, const Vec3& weight,
-               const Surface& sf, uint32_t leave) {
+/// Shades one hit: emission, ambient and lights go to the pixel / shadow batch; a mirror or
+/// dielectric hit is recorded for bounce(), which makes its mirror and refraction rays.
+void shade_hit(const Context& ctx, Scratch& s, const Ray& ray, const PathState& seg, uint32_t index,
+               const Vec3& weight, const Surface& sf, uint32_t leave) {
   const Vec3& p = sf.p;
   // Every wavefront ray is unit length as it is made (the camera, reflect() and refract()
   // normalize their directions): normalizing it again here only cost a square root and a
@@ -619,31 +637,68 @@ void shade_hit(const Context& ctx, Scratch& s, const Ray& ray, const PathState& 
   }
   s.additions[s.n_additions++] = Scratch::Addition{weight * m.base, seg.pixel, lit};
 
-  // Mirror and dielectric split.
-  float refl_w = m.refl;
-  float refr_w = 0.0f;
-  Vec3 refr_dir;
-  MediumStack refr_media;
+  // Nothing to bounce unless the surface mirrors or transmits (the mirror and refraction
+  // weights in bounce() are then both <= 0, or NaN: no ray either way). Field by field: an
+  // aggregate is built on the stack by GCC and copied with wide loads that wait for the narrower
+  // stores just made (store-forwarding stalls).
+  if (!(m.refl > 0.0f || m.trans > 0.0f)) return;
+  const size_t k = s.n_bounces++;
+  Bounce& b = s.bounces[k];
+  b.p = p;
+  b.weight = weight;
+  b.refl = m.refl;
+  b.trans = m.trans;
+  b.ray = index;
+  b.leave = leave;
+  float eta = 1.0f;  // no interface (fresnel_dielectric() is 0): mirror-only hits
   if (m.trans > 0.0f) {
-    const float trans = m.trans;
     const uint32_t mid = sf.material_id;
-    refr_media = seg.media;
+    b.media = seg.media;
     float n1, n2;
     if (front) {  // entering the medium behind the surface
       n1 = ctx.medium_ior(seg.media.top());
       n2 = m.ior;
-      refr_media.push(mid);
+      b.media.push(mid);
     } else {      // leaving it
       n1 = m.ior;
-      refr_media.remove(mid);
-      n2 = ctx.medium_ior(refr_media.top());
+      b.media.remove(mid);
+      n2 = ctx.medium_ior(b.media.top());
     }
-    const float eta = n1 / n2;
-    float fr = detail::fresnel_dielectric(-dot(d, ns_f), eta);
-    bool ok = fr < 1.0f && detail::refract(d, ns_f, eta, refr_dir) && dot(refr_dir, ng_f) < 0.0f;
+    eta = n1 / n2;
+  }
+  b.eta = eta;
+  float* const row = s.bounce_rows.data() + k;
+  const size_t stride = s.bounce_stride;
+  const float in[render::kBounceInputs] = {d.x, d.y, d.z, ns_f.x, ns_f.y, ns_f.z, ng_f.x, ng_f.y, ng_f.z, eta};
+  for (int r = 0; r < render::kBounceInputs; ++r) row[static_cast<size_t>(r) * stride] = in[r];
+}
+
+/// The mirror and refraction rays of recorded hit \p k (segment \p seg, incoming direction \p d),
+/// from the directions render::bounce_block() found for it: its mirror ray to the next wavefront,
+/// its refraction ray after it (or, in history order, after the run's mirror rays). Called for
+/// the recorded hits in shading order, so the rays are the same, in the same order, as when each
+/// hit made them at once.
+void bounce(const Context& ctx, Scratch& s, const Vec3& d, const PathState& seg, size_t k) {
+  const Bounce& b = s.bounces[k];
+  const float* const row = s.bounce_rows.data() + k;
+  const size_t stride = s.bounce_stride;
+  const auto at = [&](int r) { return row[static_cast<size_t>(r) * stride]; };
+  const Vec3 ng_f{at(render::kBounceGx), at(render::kBounceGy), at(render::kBounceGz)};
+  const Vec3& p = b.p;
+  const Vec3& weight = b.weight;
+  float refl_w = b.refl;
+  float refr_w = 0.0f;
+  Vec3 refr_dir;
+  if (b.trans > 0.0f) {
+    const float trans = b.trans;
+    float fr = at(render::kBounceFr);
+    int32_t ok_bits;
+    std::memcpy(&ok_bits, row + static_cast<size_t>(render::kBounceOk) * stride, sizeof ok_bits);
+    bool ok = ok_bits != 0;
+    if (ok) refr_dir = Vec3{at(render::kBounceTx), at(render::kBounceTy), at(render::kBounceTz)};
     if (!ok && fr < 1.0f) {  // the shading normal bent the ray back: use the geometric one
-      fr = detail::fresnel_dielectric(-dot(d, ng_f), eta);
-      ok = fr < 1.0f && detail::refract(d, ng_f, eta, refr_dir) && dot(refr_dir, ng_f) < 0.0f;
+      fr = detail::fresnel_dielectric(-dot(d, ng_f), b.eta);
+      ok = fr < 1.0f && detail::refract(d, ng_f, b.eta, refr_dir) && dot(refr_dir, ng_f) < 0.0f;
     }
     if (!ok) fr = 1.0f;  // total internal reflection
     refl_w += trans * fr;
@@ -653,12 +708,11 @@ void shade_hit(const Context& ctx, Scratch& s, const Ray& ray, const PathState& 
   if (refl_w > 0.0f && seg.reflect_depth < ctx.max_reflect) {
     const Vec3 w = weight * refl_w;
     if (max_component(w) >= kMinWeight) {
-      Vec3 r = reflect(d, ns_f);
-      if (dot(r, ng_f) <= 0.0f) r = reflect(d, ng_f);  // keep it above the geometric surface
-      const size_t k = s.n_next++;  // render_tile sized next_* for two rays per hit
-      s.next_rays[k] = Ray{offset_ray_origin(p, ng_f), 0.0f, normalize(r), kInf};
-      s.next_paths[k] = PathState{w, seg.pixel, seg.global, static_cast<uint8_t>(seg.reflect_depth + 1),
-                                  seg.refract_depth, next_history(seg.history, 0), seg.media, leave};
+      const size_t r = s.n_next++;  // render_tile sized next_* for two rays per hit
+      s.next_rays[r] = Ray{offset_ray_origin(p, ng_f), 0.0f,
+                           Vec3{at(render::kBounceMx), at(render::kBounceMy), at(render::kBounceMz)}, kInf};
+      s.next_paths[r] = PathState{w, seg.pixel, seg.global, static_cast<uint8_t>(seg.reflect_depth + 1),
+                                  seg.refract_depth, next_history(seg.history, 0), seg.media, b.leave};
     }
   }
   if (refr_w > 0.0f && seg.refract_depth < ctx.max_refract) {
@@ -668,11 +722,11 @@ void shade_hit(const Context& ctx, Scratch& s, const Ray& ray, const PathState& 
       // the run is shaded, then follow its mirror rays.
       std::vector<Ray>& rays = ctx.history_order ? s.refr_rays : s.next_rays;
       std::vector<PathState>& paths = ctx.history_order ? s.refr_paths : s.next_paths;
-      const size_t k = ctx.history_order ? s.n_refr++ : s.n_next++;
-      rays[k] = Ray{offset_ray_origin(p, -ng_f), 0.0f, refr_dir, kInf};
-      paths[k] = PathState{w, seg.pixel, seg.global, seg.reflect_depth,
-                           static_cast<uint8_t>(seg.refract_depth + 1), next_history(seg.history, 1), refr_media,
-                           leave};
+      const size_t r = ctx.history_order ? s.n_refr++ : s.n_next++;
+      rays[r] = Ray{offset_ray_origin(p, -ng_f), 0.0f, refr_dir, kInf};
+      paths[r] = PathState{w, seg.pixel, seg.global, seg.reflect_depth,
+                           static_cast<uint8_t>(seg.refract_depth + 1), next_history(seg.history, 1), b.media,
+                           b.leave};
     }
   }
 }
@@ -811,6 +865,10 @@ void render_tile(const Context& ctx, const SkyEval& sky, Scratch& s, const Pinho
     s.n_refr = 0;
     ensure_size(s.additions, n);
     s.n_additions = 0;
+    ensure_size(s.bounces, n);
+    s.n_bounces = 0;
+    s.bounce_stride = (n + render::kLitBlock - 1) / render::kLitBlock * render::kLitBlock;
+    ensure_size(s.bounce_rows, render::kBounceRows * s.bounce_stride);
     s.lit.reset(n, ctx.lights.size());
     ensure_size(s.lit_global, n);
     ensure_size(s.lit_history, n);
@@ -821,14 +879,9 @@ void render_tile(const Context& ctx, const SkyEval& sky, Scratch& s, const Pinho
       s.n_next += s.n_refr;
       s.n_refr = 0;
     };
-    uint16_t run = paths.front().history;
     for (size_t i = 0; i < n; ++i) {
       const Ray& ray = rays[i];
       const PathState& seg = paths[i];
-      if (seg.history != run) {
-        if (s.n_refr != 0) flush_refractions();
-        run = seg.history;
-      }
       const Hit& hit = s.hits[i];
       const bool valid = ctx.valid(hit);
       Vec3 weight = seg.weight;
@@ -846,7 +899,7 @@ void render_tile(const Context& ctx, const SkyEval& sky, Scratch& s, const Pinho
       }
       if (max_component(weight) <= 0.0f) continue;
       const Surface sf = ctx.voxels ? voxel_surface(ctx, s, ray, hit) : triangle_surface(ctx, hit);
-      shade_hit(ctx, s, ray, seg, weight, sf, ctx.voxels ? hit.prim : kNoHit);
+      shade_hit(ctx, s, ray, seg, static_cast<uint32_t>(i), weight, sf, ctx.voxels ? hit.prim : kNoHit);
       if (seg.primary() && ctx.want_normal) {
         Vec3 nrm = sf.ns != Vec3{} ? sf.ns : sf.ng;
         if (dot(nrm, ray.dir) > 0.0f) nrm = -nrm;  // facing the camera
@@ -854,6 +907,28 @@ void render_tile(const Context& ctx, const SkyEval& sky, Scratch& s, const Pinho
       }
     }
 
+    // The recorded mirror and dielectric hits: their directions a block at a time, then their
+    // rays in shading order (in history order a run's refractions after its mirror rays: a run
+    // ends where the bounce history changes). Evaluated hit by hit inside the loop above, these
+    // dependent chains of square roots and divisions were waited on one hit after another.
+    const size_t nb = s.n_bounces;
+    if (nb > 0) {
+      // The last block's unused lanes get harmless inputs (never read back).
+      const size_t padded = (nb + render::kLitBlock - 1) / render::kLitBlock * render::kLitBlock;
+      for (int r = 0; r < render::kBounceInputs; ++r)
+        std::fill_n(s.bounce_rows.data() + static_cast<size_t>(r) * s.bounce_stride + nb, padded - nb, 0.0f);
+      for (size_t j = 0; j < nb; j += render::kLitBlock) render::bounce_block(s.bounce_rows.data(), s.bounce_stride, j);
+    }
+    uint16_t run = paths.front().history;
+    for (size_t b = 0; b < nb; ++b) {
+      const uint32_t i = s.bounces[b].ray;
+      const PathState& seg = paths[i];
+      if (seg.history != run) {
+        if (s.n_refr != 0) flush_refractions();
+        run = seg.history;
+      }
+      bounce(ctx, s, rays[i].dir, seg, b);
+    }
     if (s.n_refr != 0) flush_refractions();
     add_shading(ctx, s);
 

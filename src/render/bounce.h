@@ -1,0 +1,110 @@
+/// \file bounce.h
+/// The mirror and dielectric directions of the Whitted integrator's hits, a block of kLitBlock
+/// hits at a time (internal to src/render; tested in tests/lighting_test.cpp).
+///
+/// Per hit these are chains of dependent operations (a dot product, the Fresnel equations with
+/// a square root and two divisions, Snell's law with another square root, two normalisations),
+/// which the shading loop waited on hit by hit. The integrator records its mirror and dielectric
+/// hits (BounceRows, structure of arrays), evaluates them here side by side, then makes their
+/// rays in shading order. Lane by lane the operations are those of bounce_reference() in the same
+/// order (no contraction into FMA: -ffp-contract=off; square root and division are correctly
+/// rounded in SIMD as in scalar code; every comparison and clamp selects as its scalar form
+/// does, NaN included), so every direction has the same bits.
+#pragma once
+
+#include <cstddef>
+
+#include "render/fresnel.h"
+#include "render/lighting.h"
+#include "specula/math.h"
+
+namespace specula::render {
+
+/// Rows of a block of recorded hits: inputs (incoming direction d, shading normal n and
+/// geometric normal g, both facing the incoming ray, and the relative index of refraction eta),
+/// then the outputs of bounce_block().
+enum BounceRow : int {
+  kBounceDx, kBounceDy, kBounceDz,
+  kBounceNx, kBounceNy, kBounceNz,
+  kBounceGx, kBounceGy, kBounceGz,
+  kBounceEta,
+  kBounceInputs,                  ///< rows above: written by the integrator
+  kBounceFr = kBounceInputs,      ///< Fresnel reflectance through n
+  kBounceOk,                      ///< refraction through n kept (int32 all ones) or not (0)
+  kBounceTx, kBounceTy, kBounceTz,  ///< the refracted direction (where kBounceOk)
+  kBounceMx, kBounceMy, kBounceMz,  ///< the unit mirror direction
+  kBounceRows,
+};
+
+/// What bounce_block() computes for one hit, in scalar code (the definition it is tested
+/// against): \p fr the reflectance, \p ok whether the refraction through the shading normal is
+/// kept (it exists and leaves below the geometric surface) with direction \p t, \p mirror the
+/// mirror direction (about the shading normal, or the geometric one if that would dip below the
+/// geometric surface), normalised.
+inline void bounce_reference(const Vec3& d, const Vec3& n, const Vec3& g, float eta, float& fr, bool& ok, Vec3& t,
+                             Vec3& mirror) {
+  fr = detail::fresnel_dielectric(-dot(d, n), eta);
+  ok = fr < 1.0f && detail::refract(d, n, eta, t) && dot(t, g) < 0.0f;
+  Vec3 r = reflect(d, n);
+  if (dot(r, g) <= 0.0f) r = reflect(d, g);
+  mirror = normalize(r);
+}
+
+/// bounce_reference() for the kLitBlock hits j .. j + kLitBlock - 1 of \p rows (row r of hit i
+/// at rows[r * stride + i]; stride a multiple of kLitBlock, j too): reads the input rows,
+/// writes the output rows.
+inline void bounce_block(float* rows, size_t stride, size_t j) {
+  using namespace lit_detail;
+  const auto in = [&](int r) { return load(rows + static_cast<size_t>(r) * stride + j); };
+  const auto out = [&](int r, const auto& v) { std::memcpy(rows + static_cast<size_t>(r) * stride + j, &v, sizeof v); };
+  const Fv zero = splat(0.0f), one = splat(1.0f), minus_one = splat(-1.0f), inf_free = splat(FLT_MAX);
+  const Fv dx = in(kBounceDx), dy = in(kBounceDy), dz = in(kBounceDz);
+  const Fv nx = in(kBounceNx), ny = in(kBounceNy), nz = in(kBounceNz);
+  const Fv gx = in(kBounceGx), gy = in(kBounceGy), gz = in(kBounceGz);
+  const Fv eta = in(kBounceEta);
+  // std::clamp(v, lo, hi) = v < lo ? lo : (hi < v ? hi : v); std::max(0, v) = 0 < v ? v : 0.
+  const auto clamp = [](Fv v, Fv lo, Fv hi) { return select(v < lo, lo, select(hi < v, hi, v)); };
+  const auto max0 = [&](Fv v) { return select(zero < v, v, zero); };
+  const Fv dn = dx * nx + dy * ny + dz * nz;
+  const Fv eta2 = eta * eta;
+
+  // detail::fresnel_dielectric(-dn, eta).
+  const Fv ci = clamp(-dn, zero, one);
+  const Fv sin2_t = eta2 * max0(one - ci * ci);
+  const Fv cos_t = sqrt_lanes(max0(one - sin2_t));
+  const Fv eci = eta * ci, ect = eta * cos_t;
+  const Fv ds = eci + cos_t, dp = ci + ect;
+  const Fv rs = (eci - cos_t) / ds, rp = (ci - ect) / dp;
+  Fv fr = clamp(splat(0.5f) * (rs * rs + rp * rp), zero, one);
+  fr = select((sin2_t >= one) | (ds <= zero) | (dp <= zero), one, fr);  // total internal reflection, grazing
+  fr = select(eta == one, zero, fr);                                     // index-matched
+
+  // detail::refract(d, n, eta, t), kept where fr < 1 and t leaves below the geometric surface.
+  const Fv rci = clamp(-dn, minus_one, one);
+  const Fv rsin2_t = eta2 * max0(one - rci * rci);
+  const Fv k = eta * rci - sqrt_lanes(one - rsin2_t);
+  Fv tx = dx * eta + nx * k, ty = dy * eta + ny * k, tz = dz * eta + nz * k;
+  const auto normalize_lanes = [&](Fv& x, Fv& y, Fv& z) {
+    const Fv len = sqrt_lanes(x * x + y * y + z * z);
+    const Iv unit = (len > zero) & (len <= inf_free);  // normalize(): zero unless finite and > 0
+    const Fv inv = one / len;
+    x = select(unit, x * inv, zero), y = select(unit, y * inv, zero), z = select(unit, z * inv, zero);
+  };
+  normalize_lanes(tx, ty, tz);
+  const Iv ok = (fr < one) & ~(rsin2_t >= one) & (tx * gx + ty * gy + tz * gz < zero);
+
+  // reflect(d, n), or reflect(d, g) where that would dip below the geometric surface; normalised.
+  const Fv sn = splat(2.0f) * dn;
+  Fv mx = dx - nx * sn, my = dy - ny * sn, mz = dz - nz * sn;
+  const Fv sg = splat(2.0f) * (dx * gx + dy * gy + dz * gz);
+  const Iv below = mx * gx + my * gy + mz * gz <= zero;
+  mx = select(below, dx - gx * sg, mx), my = select(below, dy - gy * sg, my), mz = select(below, dz - gz * sg, mz);
+  normalize_lanes(mx, my, mz);
+
+  out(kBounceFr, fr);
+  out(kBounceOk, ok);
+  out(kBounceTx, tx), out(kBounceTy, ty), out(kBounceTz, tz);
+  out(kBounceMx, mx), out(kBounceMy, my), out(kBounceMz, mz);
+}
+
+}  // namespace specula::render
