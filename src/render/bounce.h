@@ -57,7 +57,7 @@ inline void bounce_block(float* rows, size_t stride, size_t j) {
   using namespace lit_detail;
   const auto in = [&](int r) { return load(rows + static_cast<size_t>(r) * stride + j); };
   const auto out = [&](int r, const auto& v) { std::memcpy(rows + static_cast<size_t>(r) * stride + j, &v, sizeof v); };
-  const Fv zero = splat(0.0f), one = splat(1.0f), minus_one = splat(-1.0f), inf_free = splat(FLT_MAX);
+  const Fv zero = splat(0.0f), one = splat(1.0f), minus_one = splat(-1.0f);
   const Fv dx = in(kBounceDx), dy = in(kBounceDy), dz = in(kBounceDz);
   const Fv nx = in(kBounceNx), ny = in(kBounceNy), nz = in(kBounceNz);
   const Fv gx = in(kBounceGx), gy = in(kBounceGy), gz = in(kBounceGz);
@@ -84,12 +84,6 @@ inline void bounce_block(float* rows, size_t stride, size_t j) {
   const Fv rsin2_t = eta2 * max0(one - rci * rci);
   const Fv k = eta * rci - sqrt_lanes(one - rsin2_t);
   Fv tx = dx * eta + nx * k, ty = dy * eta + ny * k, tz = dz * eta + nz * k;
-  const auto normalize_lanes = [&](Fv& x, Fv& y, Fv& z) {
-    const Fv len = sqrt_lanes(x * x + y * y + z * z);
-    const Iv unit = (len > zero) & (len <= inf_free);  // normalize(): zero unless finite and > 0
-    const Fv inv = one / len;
-    x = select(unit, x * inv, zero), y = select(unit, y * inv, zero), z = select(unit, z * inv, zero);
-  };
   normalize_lanes(tx, ty, tz);
   const Iv ok = (fr < one) & ~(rsin2_t >= one) & (tx * gx + ty * gy + tz * gz < zero);
 

@@ -193,6 +193,16 @@ SPECULA_LIT_INLINE Fv sqrt_lanes(Fv x) {
   return r;
 }
 
+/// normalize() lane by lane: (x, y, z) times 1 / length, or zero unless the length is finite
+/// and positive.
+SPECULA_LIT_INLINE void normalize_lanes(Fv& x, Fv& y, Fv& z) {
+  const Fv zero{}, one = splat(1.0f);
+  const Fv len = sqrt_lanes(x * x + y * y + z * z);
+  const Iv unit = (len > zero) & (len <= splat(FLT_MAX));
+  const Fv inv = one / len;
+  x = select(unit, x * inv, zero), y = select(unit, y * inv, zero), z = select(unit, z * inv, zero);
+}
+
 /// Half a block's lanes in double: four doubles fill an AVX2 register. power_lanes() works on two
 /// such halves rather than one eight-double vector, which AVX2 has no register for: GCC lowered
 /// that one's 64-bit compares and selects lane by lane through the stack, which cost the
@@ -278,10 +288,7 @@ inline void LitPoints::evaluate_light(size_t light, bool directional, const Vec3
     const Fv cos_l = sx * lx + sy * ly + sz * lz;
     Fv fx = at(15) * cos_l, fy = at(16) * cos_l, fz = at(17) * cos_l;
     Fv hx = lx - at(9), hy = ly - at(10), hz = lz - at(11);
-    const Fv len = sqrt_lanes(hx * hx + hy * hy + hz * hz);
-    const Iv unit = (len > zero) & (len <= splat(FLT_MAX));  // normalize(): zero unless finite and > 0
-    const Fv inv_len = one / len;
-    hx = select(unit, hx * inv_len, zero), hy = select(unit, hy * inv_len, zero), hz = select(unit, hz * inv_len, zero);
+    normalize_lanes(hx, hy, hz);
     const Fv dn = sx * hx + sy * hy + sz * hz;
     const Fv nh = select(zero < dn, dn, zero);  // std::max(0.0f, dn)
     const Fv pw = select(nh < at(kZero), zero, power_lanes(nh, load(power_.data() + j)));
