@@ -1,7 +1,7 @@
 // The block evaluation of lights (render::LitPoints) against render::sample_light(), the
 // one-point formula: the same contributions bit for bit, for every kind of point; and the block
 // evaluation of mirror and refraction directions (render::bounce_block()) against
-// render::bounce_reference().
+// render::bounce_reference(), and the gradient sky's blocks against SkyEval::gradient_t().
 #include <gtest/gtest.h>
 
 #include <cmath>
@@ -12,6 +12,7 @@
 
 #include "render/bounce.h"
 #include "render/lighting.h"
+#include "render/sky.h"
 
 using namespace specula;
 using render::LitPoint;
@@ -78,12 +79,21 @@ void power(const render::lit_detail::Fv* x, const render::lit_detail::Iv* n, ren
 void bounce_all(float* rows, size_t stride, size_t n) {
   for (size_t j = 0; j < n; j += render::kLitBlock) render::bounce_block(rows, stride, j);
 }
+void gradient_all(float* rows, size_t stride, size_t n) {
+  for (size_t j = 0; j < n; j += render::kLitBlock) render::gradient_t_block(rows, stride, j);
+}
 #if defined(__GNUC__) && !defined(__clang__) && defined(__x86_64__)
 [[gnu::flatten, gnu::target("arch=x86-64-v3")]] void bounce_all_v3(float* rows, size_t stride, size_t n) {
   bounce_all(rows, stride, n);
 }
 [[gnu::flatten, gnu::target("arch=x86-64-v4")]] void bounce_all_v4(float* rows, size_t stride, size_t n) {
   bounce_all(rows, stride, n);
+}
+[[gnu::flatten, gnu::target("arch=x86-64-v3")]] void gradient_all_v3(float* rows, size_t stride, size_t n) {
+  gradient_all(rows, stride, n);
+}
+[[gnu::flatten, gnu::target("arch=x86-64-v4")]] void gradient_all_v4(float* rows, size_t stride, size_t n) {
+  gradient_all(rows, stride, n);
 }
 [[gnu::flatten, gnu::target("arch=x86-64-v3")]] void evaluate_all_v3(LitPoints& lit, const std::vector<TestLight>& lights) {
   evaluate_all(lit, lights);
@@ -108,14 +118,15 @@ struct Clone {
   void (*evaluate)(LitPoints&, const std::vector<TestLight>&);
   void (*power)(const render::lit_detail::Fv*, const render::lit_detail::Iv*, render::lit_detail::Fv*);
   void (*bounce)(float*, size_t, size_t);
+  void (*gradient)(float*, size_t, size_t);
 };
 
 /// The clones this CPU can run (the same CPUID tests as render_tile's resolver makes).
 std::vector<Clone> clones() {
-  std::vector<Clone> c{{"x86-64", &evaluate_all, &power, &bounce_all}};
+  std::vector<Clone> c{{"x86-64", &evaluate_all, &power, &bounce_all, &gradient_all}};
 #if defined(__GNUC__) && !defined(__clang__) && defined(__x86_64__)
-  if (__builtin_cpu_supports("x86-64-v3")) c.push_back({"x86-64-v3", &evaluate_all_v3, &power_v3, &bounce_all_v3});
-  if (__builtin_cpu_supports("x86-64-v4")) c.push_back({"x86-64-v4", &evaluate_all_v4, &power_v4, &bounce_all_v4});
+  if (__builtin_cpu_supports("x86-64-v3")) c.push_back({"x86-64-v3", &evaluate_all_v3, &power_v3, &bounce_all_v3, &gradient_all_v3});
+  if (__builtin_cpu_supports("x86-64-v4")) c.push_back({"x86-64-v4", &evaluate_all_v4, &power_v4, &bounce_all_v4, &gradient_all_v4});
 #endif
   return c;
 }
@@ -277,4 +288,42 @@ TEST(Lighting, BounceBlocksGiveTheScalarDirectionsBitForBit) {
   EXPECT_GT(refracted, 100u);
   EXPECT_GT(total_reflection, 100u);
   EXPECT_GT(geometric_mirror, 10u);
+}
+
+TEST(Lighting, GradientSkyBlocksGiveTheScalarBlendBitForBit) {
+  const float kNaN = std::numeric_limits<float>::quiet_NaN();
+  std::mt19937 rng(13);
+  std::uniform_real_distribution<float> u(-2.0f, 2.0f);
+  size_t above = 0, below = 0;
+  for (const Clone& clone : clones()) {
+    SCOPED_TRACE(clone.name);
+    for (const size_t n : {size_t{2001}, size_t{8}, size_t{1}}) {
+      const size_t stride = (n + render::kLitBlock - 1) / render::kLitBlock * render::kLitBlock;
+      std::vector<float> rows(4 * stride, 0.0f);
+      std::vector<Vec3> d(n);
+      for (size_t i = 0; i < n; ++i) {
+        // Unit directions as the integrator's rays have, and what a direction could be besides.
+        d[i] = i % 5 == 0 ? Vec3{u(rng), u(rng), u(rng)} : random_unit(rng);
+        switch (i % 37) {
+          case 1: d[i] = Vec3{0.0f, 1.0f, 0.0f}; break;
+          case 2: d[i] = Vec3{0.0f, -1.0f, 0.0f}; break;
+          case 3: d[i] = Vec3{1.0f, 0.0f, 0.0f}; break;
+          case 4: d[i] = Vec3{}; break;
+          case 5: d[i] = Vec3{kNaN, 0.5f, 0.0f}; break;
+          case 6: d[i] = Vec3{0.0f, kInf, 0.0f}; break;
+          case 7: d[i] = Vec3{1e-30f, 1e-30f, 0.0f}; break;
+          default: break;
+        }
+        rows[i] = d[i].x, rows[stride + i] = d[i].y, rows[2 * stride + i] = d[i].z;
+      }
+      clone.gradient(rows.data(), stride, n);
+      for (size_t i = 0; i < n; ++i) {
+        const float want = SkyEval::gradient_t(d[i]);
+        ASSERT_TRUE(same_bits(rows[3 * stride + i], want)) << "direction " << i;
+        (want > 0.0f ? above : below) += 1;
+      }
+    }
+  }
+  EXPECT_GT(above, 1000u);
+  EXPECT_GT(below, 1000u);
 }

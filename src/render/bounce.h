@@ -62,8 +62,8 @@ inline void bounce_block(float* rows, size_t stride, size_t j) {
   const Fv nx = in(kBounceNx), ny = in(kBounceNy), nz = in(kBounceNz);
   const Fv gx = in(kBounceGx), gy = in(kBounceGy), gz = in(kBounceGz);
   const Fv eta = in(kBounceEta);
-  // std::clamp(v, lo, hi) = v < lo ? lo : (hi < v ? hi : v); std::max(0, v) = 0 < v ? v : 0.
-  const auto clamp = [](Fv v, Fv lo, Fv hi) { return select(v < lo, lo, select(hi < v, hi, v)); };
+  const auto clamp = clamp_lanes;
+  // std::max(0, v) = 0 < v ? v : 0.
   const auto max0 = [&](Fv v) { return select(zero < v, v, zero); };
   const Fv dn = dx * nx + dy * ny + dz * nz;
   const Fv eta2 = eta * eta;

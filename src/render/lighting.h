@@ -193,6 +193,9 @@ SPECULA_LIT_INLINE Fv sqrt_lanes(Fv x) {
   return r;
 }
 
+/// std::clamp(v, lo, hi) lane by lane: v < lo ? lo : (hi < v ? hi : v).
+SPECULA_LIT_INLINE Fv clamp_lanes(Fv v, Fv lo, Fv hi) { return select(v < lo, lo, select(hi < v, hi, v)); }
+
 /// normalize() lane by lane: (x, y, z) times 1 / length, or zero unless the length is finite
 /// and positive.
 SPECULA_LIT_INLINE void normalize_lanes(Fv& x, Fv& y, Fv& z) {

@@ -5,6 +5,7 @@
 #include <algorithm>
 #include <cmath>
 
+#include "render/lighting.h"
 #include "specula/math.h"
 #include "specula/scene.h"
 
@@ -19,18 +20,38 @@ class SkyEval {
   /// the scene), images out of line.
   Vec3 radiance(const Vec3& dir) const {
     if (sky_.type == SkyType::Constant) return sky_.color * sky_.intensity;
-    if (sky_.type == SkyType::Gradient) {
-      // Horizon colour at and below the horizon, blending to the zenith colour; the square
-      // root keeps a visible horizon band instead of a linear ramp.
-      const float t = std::sqrt(std::clamp(normalize(dir).y, 0.0f, 1.0f));
-      return lerp(sky_.horizon, sky_.color, t) * sky_.intensity;
-    }
+    if (sky_.type == SkyType::Gradient) return gradient_radiance(gradient_t(dir));
     return image_radiance(dir);
   }
+
+  /// Whether this is a gradient sky, whose radiance() the integrator computes in two steps for
+  /// blocks of directions: gradient_radiance(gradient_t(dir)) is radiance(dir).
+  bool gradient() const { return sky_.type == SkyType::Gradient; }
+  /// The gradient's blend from the horizon colour (at and below the horizon) to the zenith
+  /// colour for direction \p dir; the square root keeps a visible horizon band instead of a
+  /// linear ramp.
+  static float gradient_t(const Vec3& dir) { return std::sqrt(std::clamp(normalize(dir).y, 0.0f, 1.0f)); }
+  Vec3 gradient_radiance(float t) const { return lerp(sky_.horizon, sky_.color, t) * sky_.intensity; }
 
  private:
   Vec3 image_radiance(const Vec3& dir) const;
   const Sky& sky_;
 };
 
+namespace render {
+
+/// SkyEval::gradient_t() for the kLitBlock directions j .. j + kLitBlock - 1 of \p rows (x, y,
+/// z of direction i at rows[i], rows[stride + i], rows[2 stride + i]; stride and j multiples of
+/// kLitBlock): writes t to rows[3 stride + i]. Lane by lane the same normalisation, clamp and
+/// square root, so the same bits (tests/lighting_test.cpp).
+inline void gradient_t_block(float* rows, size_t stride, size_t j) {
+  using namespace lit_detail;
+  float* const x = rows + j;
+  Fv dx = load(x), dy = load(x + stride), dz = load(x + 2 * stride);
+  normalize_lanes(dx, dy, dz);
+  const Fv t = sqrt_lanes(clamp_lanes(dy, splat(0.0f), splat(1.0f)));
+  std::memcpy(x + 3 * stride, &t, sizeof t);
+}
+
+}  // namespace render
 }  // namespace specula
