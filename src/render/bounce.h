@@ -5,7 +5,7 @@
 /// Per hit these are chains of dependent operations (a dot product, the Fresnel equations with
 /// a square root and two divisions, Snell's law with another square root, two normalisations),
 /// which the shading loop waited on hit by hit. The integrator records its mirror and dielectric
-/// hits (BounceRows, structure of arrays), evaluates them here side by side, then makes their
+/// hits (BounceRow rows, structure of arrays), evaluates them here side by side, then makes their
 /// rays in shading order. Lane by lane the operations are those of bounce_reference() in the same
 /// order (no contraction into FMA: -ffp-contract=off; square root and division are correctly
 /// rounded in SIMD as in scalar code; every comparison and clamp selects as its scalar form
@@ -62,25 +62,24 @@ inline void bounce_block(float* rows, size_t stride, size_t j) {
   const Fv nx = in(kBounceNx), ny = in(kBounceNy), nz = in(kBounceNz);
   const Fv gx = in(kBounceGx), gy = in(kBounceGy), gz = in(kBounceGz);
   const Fv eta = in(kBounceEta);
-  const auto clamp = clamp_lanes;
   // std::max(0, v) = 0 < v ? v : 0.
   const auto max0 = [&](Fv v) { return select(zero < v, v, zero); };
   const Fv dn = dx * nx + dy * ny + dz * nz;
   const Fv eta2 = eta * eta;
 
   // detail::fresnel_dielectric(-dn, eta).
-  const Fv ci = clamp(-dn, zero, one);
+  const Fv ci = clamp_lanes(-dn, zero, one);
   const Fv sin2_t = eta2 * max0(one - ci * ci);
   const Fv cos_t = sqrt_lanes(max0(one - sin2_t));
   const Fv eci = eta * ci, ect = eta * cos_t;
   const Fv ds = eci + cos_t, dp = ci + ect;
   const Fv rs = (eci - cos_t) / ds, rp = (ci - ect) / dp;
-  Fv fr = clamp(splat(0.5f) * (rs * rs + rp * rp), zero, one);
+  Fv fr = clamp_lanes(splat(0.5f) * (rs * rs + rp * rp), zero, one);
   fr = select((sin2_t >= one) | (ds <= zero) | (dp <= zero), one, fr);  // total internal reflection, grazing
   fr = select(eta == one, zero, fr);                                     // index-matched
 
   // detail::refract(d, n, eta, t), kept where fr < 1 and t leaves below the geometric surface.
-  const Fv rci = clamp(-dn, minus_one, one);
+  const Fv rci = clamp_lanes(-dn, minus_one, one);
   const Fv rsin2_t = eta2 * max0(one - rci * rci);
   const Fv k = eta * rci - sqrt_lanes(one - rsin2_t);
   Fv tx = dx * eta + nx * k, ty = dy * eta + ny * k, tz = dz * eta + nz * k;
