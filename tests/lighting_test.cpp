@@ -76,24 +76,26 @@ void evaluate_all(LitPoints& lit, const std::vector<TestLight>& lights) {
 void power(const render::lit_detail::Fv* x, const render::lit_detail::Iv* n, render::lit_detail::Fv* out) {
   *out = render::lit_detail::power_lanes(*x, *n);
 }
-void bounce_all(float* rows, size_t stride, size_t n) {
-  for (size_t j = 0; j < n; j += render::kLitBlock) render::bounce_block(rows, stride, j);
+void bounce_all(float* rows, size_t n) {
+  for (size_t j = 0; j < n; j += render::kLitBlock)
+    render::bounce_block(rows + render::block_offset<render::kBounceRows>(0, j));
 }
-void gradient_all(float* rows, size_t stride, size_t n) {
-  for (size_t j = 0; j < n; j += render::kLitBlock) render::gradient_t_block(rows, stride, j);
+void gradient_all(float* rows, size_t n) {
+  for (size_t j = 0; j < n; j += render::kLitBlock)
+    render::gradient_t_block(rows + render::block_offset<render::kSkyRows>(0, j));
 }
 #if defined(__GNUC__) && !defined(__clang__) && defined(__x86_64__)
-[[gnu::flatten, gnu::target("arch=x86-64-v3")]] void bounce_all_v3(float* rows, size_t stride, size_t n) {
-  bounce_all(rows, stride, n);
+[[gnu::flatten, gnu::target("arch=x86-64-v3")]] void bounce_all_v3(float* rows, size_t n) {
+  bounce_all(rows, n);
 }
-[[gnu::flatten, gnu::target("arch=x86-64-v4")]] void bounce_all_v4(float* rows, size_t stride, size_t n) {
-  bounce_all(rows, stride, n);
+[[gnu::flatten, gnu::target("arch=x86-64-v4")]] void bounce_all_v4(float* rows, size_t n) {
+  bounce_all(rows, n);
 }
-[[gnu::flatten, gnu::target("arch=x86-64-v3")]] void gradient_all_v3(float* rows, size_t stride, size_t n) {
-  gradient_all(rows, stride, n);
+[[gnu::flatten, gnu::target("arch=x86-64-v3")]] void gradient_all_v3(float* rows, size_t n) {
+  gradient_all(rows, n);
 }
-[[gnu::flatten, gnu::target("arch=x86-64-v4")]] void gradient_all_v4(float* rows, size_t stride, size_t n) {
-  gradient_all(rows, stride, n);
+[[gnu::flatten, gnu::target("arch=x86-64-v4")]] void gradient_all_v4(float* rows, size_t n) {
+  gradient_all(rows, n);
 }
 [[gnu::flatten, gnu::target("arch=x86-64-v3")]] void evaluate_all_v3(LitPoints& lit, const std::vector<TestLight>& lights) {
   evaluate_all(lit, lights);
@@ -117,8 +119,8 @@ struct Clone {
   const char* name;
   void (*evaluate)(LitPoints&, const std::vector<TestLight>&);
   void (*power)(const render::lit_detail::Fv*, const render::lit_detail::Iv*, render::lit_detail::Fv*);
-  void (*bounce)(float*, size_t, size_t);
-  void (*gradient)(float*, size_t, size_t);
+  void (*bounce)(float*, size_t);
+  void (*gradient)(float*, size_t);
 };
 
 /// The clones this CPU can run (the same CPUID tests as render_tile's resolver makes).
@@ -214,6 +216,15 @@ TEST(Lighting, BlockPowerIsPhongPowerForEveryWholeExponent) {
   }
 }
 
+/// Rows of n items stored block by block (render::block_offset), as the integrator keeps them.
+template <int kRows>
+struct BlockRows {
+  explicit BlockRows(size_t n)
+      : rows((n + render::kLitBlock - 1) / render::kLitBlock * kRows * render::kLitBlock, 0.0f) {}
+  float& operator()(int r, size_t i) { return rows[render::block_offset<kRows>(r, i)]; }
+  std::vector<float> rows;
+};
+
 /// Same bits, or both NaN (a NaN direction's payload is not part of the contract: such rays
 /// miss; none arises from finite, unit inputs).
 ::testing::AssertionResult same_bits(float got, float want) {
@@ -231,8 +242,7 @@ TEST(Lighting, BounceBlocksGiveTheScalarDirectionsBitForBit) {
   for (const Clone& clone : clones()) {
     SCOPED_TRACE(clone.name);
     for (const size_t n : {size_t{4001}, size_t{8}, size_t{3}}) {
-      const size_t stride = (n + render::kLitBlock - 1) / render::kLitBlock * render::kLitBlock;
-      std::vector<float> rows(render::kBounceRows * stride, 0.0f);
+      BlockRows<render::kBounceRows> cell(n);
       std::vector<Vec3> d(n), sn(n), g(n);
       std::vector<float> eta(n);
       for (size_t i = 0; i < n; ++i) {
@@ -256,17 +266,17 @@ TEST(Lighting, BounceBlocksGiveTheScalarDirectionsBitForBit) {
         }
         const float in[render::kBounceInputs] = {d[i].x,  d[i].y, d[i].z, sn[i].x, sn[i].y,
                                                  sn[i].z, g[i].x, g[i].y, g[i].z,  eta[i]};
-        for (int r = 0; r < render::kBounceInputs; ++r) rows[static_cast<size_t>(r) * stride + i] = in[r];
+        for (int r = 0; r < render::kBounceInputs; ++r) cell(r, i) = in[r];
       }
-      clone.bounce(rows.data(), stride, n);
+      clone.bounce(cell.rows.data(), n);
       for (size_t i = 0; i < n; ++i) {
         float fr;
         bool ok;
         Vec3 t, mirror;
         render::bounce_reference(d[i], sn[i], g[i], eta[i], fr, ok, t, mirror);
-        const auto at = [&](int r) { return rows[static_cast<size_t>(r) * stride + i]; };
+        const auto at = [&](int r) { return cell(r, i); };
         int32_t ok_bits;
-        std::memcpy(&ok_bits, &rows[static_cast<size_t>(render::kBounceOk) * stride + i], sizeof ok_bits);
+        std::memcpy(&ok_bits, &cell(render::kBounceOk, i), sizeof ok_bits);
         ASSERT_TRUE(same_bits(at(render::kBounceFr), fr)) << "hit " << i;
         ASSERT_EQ(ok_bits, ok ? -1 : 0) << "hit " << i;
         if (ok) {
@@ -298,8 +308,7 @@ TEST(Lighting, GradientSkyBlocksGiveTheScalarBlendBitForBit) {
   for (const Clone& clone : clones()) {
     SCOPED_TRACE(clone.name);
     for (const size_t n : {size_t{2001}, size_t{8}, size_t{1}}) {
-      const size_t stride = (n + render::kLitBlock - 1) / render::kLitBlock * render::kLitBlock;
-      std::vector<float> rows(4 * stride, 0.0f);
+      BlockRows<render::kSkyRows> cell(n);
       std::vector<Vec3> d(n);
       for (size_t i = 0; i < n; ++i) {
         // Unit directions as the integrator's rays have, and what a direction could be besides.
@@ -314,12 +323,12 @@ TEST(Lighting, GradientSkyBlocksGiveTheScalarBlendBitForBit) {
           case 7: d[i] = Vec3{1e-30f, 1e-30f, 0.0f}; break;
           default: break;
         }
-        rows[i] = d[i].x, rows[stride + i] = d[i].y, rows[2 * stride + i] = d[i].z;
+        cell(0, i) = d[i].x, cell(1, i) = d[i].y, cell(2, i) = d[i].z;
       }
-      clone.gradient(rows.data(), stride, n);
+      clone.gradient(cell.rows.data(), n);
       for (size_t i = 0; i < n; ++i) {
         const float want = SkyEval::gradient_t(d[i]);
-        ASSERT_TRUE(same_bits(rows[3 * stride + i], want)) << "direction " << i;
+        ASSERT_TRUE(same_bits(cell(3, i), want)) << "direction " << i;
         (want > 0.0f ? above : below) += 1;
       }
     }

@@ -50,13 +50,13 @@ inline void bounce_reference(const Vec3& d, const Vec3& n, const Vec3& g, float 
   mirror = normalize(r);
 }
 
-/// bounce_reference() for the kLitBlock hits j .. j + kLitBlock - 1 of \p rows (row r of hit i
-/// at rows[r * stride + i]; stride a multiple of kLitBlock, j too): reads the input rows,
-/// writes the output rows.
-inline void bounce_block(float* rows, size_t stride, size_t j) {
+/// bounce_reference() for one block of kLitBlock hits, stored block by block (row r of hit i at
+/// block_offset<kBounceRows>(r, i); \p block points at the block's row 0): reads the input
+/// rows, writes the output rows.
+inline void bounce_block(float* block) {
   using namespace lit_detail;
-  const auto in = [&](int r) { return load(rows + static_cast<size_t>(r) * stride + j); };
-  const auto out = [&](int r, const auto& v) { std::memcpy(rows + static_cast<size_t>(r) * stride + j, &v, sizeof v); };
+  const auto in = [&](int r) { return load(block + static_cast<size_t>(r) * kLitBlock); };
+  const auto out = [&](int r, const auto& v) { std::memcpy(block + static_cast<size_t>(r) * kLitBlock, &v, sizeof v); };
   const Fv zero = splat(0.0f), one = splat(1.0f), minus_one = splat(-1.0f);
   const Fv dx = in(kBounceDx), dy = in(kBounceDy), dz = in(kBounceDz);
   const Fv nx = in(kBounceNx), ny = in(kBounceNy), nz = in(kBounceNz);

@@ -40,17 +40,19 @@ class SkyEval {
 
 namespace render {
 
-/// SkyEval::gradient_t() for the kLitBlock directions j .. j + kLitBlock - 1 of \p rows (x, y,
-/// z of direction i at rows[i], rows[stride + i], rows[2 stride + i]; stride and j multiples of
-/// kLitBlock): writes t to rows[3 stride + i]. Lane by lane the same normalisation, clamp and
-/// square root, so the same bits (tests/lighting_test.cpp).
-inline void gradient_t_block(float* rows, size_t stride, size_t j) {
+/// Rows of a block of gradient-sky directions (x, y, z; then gradient_t_block()'s t), stored
+/// block by block: row r of direction i at block_offset<kSkyRows>(r, i).
+inline constexpr int kSkyRows = 4;
+
+/// SkyEval::gradient_t() for one block of kLitBlock directions (\p block points at its row 0):
+/// writes row 3. Lane by lane the same normalisation, clamp and square root, so the same bits
+/// (tests/lighting_test.cpp).
+inline void gradient_t_block(float* block) {
   using namespace lit_detail;
-  float* const x = rows + j;
-  Fv dx = load(x), dy = load(x + stride), dz = load(x + 2 * stride);
+  Fv dx = load(block), dy = load(block + kLitBlock), dz = load(block + 2 * kLitBlock);
   normalize_lanes(dx, dy, dz);
   const Fv t = sqrt_lanes(clamp_lanes(dy, splat(0.0f), splat(1.0f)));
-  std::memcpy(x + 3 * stride, &t, sizeof t);
+  std::memcpy(block + 3 * kLitBlock, &t, sizeof t);
 }
 
 }  // namespace render

@@ -266,15 +266,13 @@ struct Scratch {
   std::vector<Addition> additions;
   size_t n_additions = 0;
   /// A gradient sky's misses: their additions (holding the throughput until then) get
-  /// weight * radiance after the shading loop, from sky_rows: x, y, z of the direction, then t.
+  /// weight * radiance after the shading loop, from sky_rows (render::kSkyRows rows, blocked).
   std::vector<uint32_t> sky_additions;
   size_t n_sky = 0;
   std::vector<float> sky_rows;
   std::vector<Bounce> bounces;  ///< the wavefront's mirror / dielectric hits, in shading order
   size_t n_bounces = 0;
-  std::vector<float> bounce_rows;  ///< their render::BounceRow rows, block_stride floats each
-  /// Row length of sky_rows and bounce_rows: the wavefront's size rounded up to whole blocks.
-  size_t block_stride = 0;
+  std::vector<float> bounce_rows;  ///< their render::BounceRow rows, blocked (render::block_offset)
   render::LitPoints lit;  ///< the wavefront's lit hits
   std::vector<uint32_t> lit_global;   ///< per lit hit: its pixel's index in the film
   std::vector<uint16_t> lit_history;  ///< per lit hit: its path's history
@@ -673,10 +671,9 @@ void shade_hit(const Context& ctx, Scratch& s, const Ray& ray, const PathState& 
     eta = n1 / n2;
   }
   b.eta = eta;
-  float* const row = s.bounce_rows.data() + k;
-  const size_t stride = s.block_stride;
+  float* const cell = s.bounce_rows.data() + render::block_offset<render::kBounceRows>(0, k);
   const float in[render::kBounceInputs] = {d.x, d.y, d.z, ns_f.x, ns_f.y, ns_f.z, ng_f.x, ng_f.y, ng_f.z, eta};
-  for (int r = 0; r < render::kBounceInputs; ++r) row[static_cast<size_t>(r) * stride] = in[r];
+  for (int r = 0; r < render::kBounceInputs; ++r) cell[static_cast<size_t>(r) * render::kLitBlock] = in[r];
 }
 
 /// The mirror and refraction rays of recorded hit \p k (segment \p seg, incoming direction \p d),
@@ -686,9 +683,8 @@ void shade_hit(const Context& ctx, Scratch& s, const Ray& ray, const PathState& 
 /// hit made them at once.
 void bounce(const Context& ctx, Scratch& s, const Vec3& d, const PathState& seg, size_t k) {
   const Bounce& b = s.bounces[k];
-  const float* const row = s.bounce_rows.data() + k;
-  const size_t stride = s.block_stride;
-  const auto at = [&](int r) { return row[static_cast<size_t>(r) * stride]; };
+  const float* const cell = s.bounce_rows.data() + render::block_offset<render::kBounceRows>(0, k);
+  const auto at = [&](int r) { return cell[static_cast<size_t>(r) * render::kLitBlock]; };
   const Vec3 ng_f{at(render::kBounceGx), at(render::kBounceGy), at(render::kBounceGz)};
   const Vec3& p = b.p;
   const Vec3& weight = b.weight;
@@ -699,7 +695,7 @@ void bounce(const Context& ctx, Scratch& s, const Vec3& d, const PathState& seg,
     const float trans = b.trans;
     float fr = at(render::kBounceFr);
     int32_t ok_bits;
-    std::memcpy(&ok_bits, row + static_cast<size_t>(render::kBounceOk) * stride, sizeof ok_bits);
+    std::memcpy(&ok_bits, cell + static_cast<size_t>(render::kBounceOk) * render::kLitBlock, sizeof ok_bits);
     bool ok = ok_bits != 0;
     if (ok) refr_dir = Vec3{at(render::kBounceTx), at(render::kBounceTy), at(render::kBounceTz)};
     if (!ok && fr < 1.0f) {  // the shading normal bent the ray back: use the geometric one
@@ -873,10 +869,10 @@ void render_tile(const Context& ctx, const SkyEval& sky, Scratch& s, const Pinho
     s.n_additions = 0;
     ensure_size(s.bounces, n);
     s.n_bounces = 0;
-    s.block_stride = (n + render::kLitBlock - 1) / render::kLitBlock * render::kLitBlock;
-    ensure_size(s.bounce_rows, render::kBounceRows * s.block_stride);
+    const size_t blocks = (n + render::kLitBlock - 1) / render::kLitBlock;
+    ensure_size(s.bounce_rows, blocks * render::kBounceRows * render::kLitBlock);
     ensure_size(s.sky_additions, n);
-    ensure_size(s.sky_rows, 4 * s.block_stride);
+    ensure_size(s.sky_rows, blocks * render::kSkyRows * render::kLitBlock);
     s.n_sky = 0;
     s.lit.reset(n, ctx.lights.size());
     ensure_size(s.lit_global, n);
@@ -906,9 +902,10 @@ void render_tile(const Context& ctx, const SkyEval& sky, Scratch& s, const Pinho
         if (sky.gradient()) {  // weight * sky.radiance(ray.dir), a block at a time after the loop
           const size_t k = s.n_sky++;
           s.sky_additions[k] = static_cast<uint32_t>(s.n_additions);
-          s.sky_rows[k] = ray.dir.x;
-          s.sky_rows[s.block_stride + k] = ray.dir.y;
-          s.sky_rows[2 * s.block_stride + k] = ray.dir.z;
+          float* const cell = s.sky_rows.data() + render::block_offset<render::kSkyRows>(0, k);
+          cell[0] = ray.dir.x;
+          cell[render::kLitBlock] = ray.dir.y;
+          cell[2 * render::kLitBlock] = ray.dir.z;
           s.additions[s.n_additions++] = Scratch::Addition{weight, seg.pixel, Scratch::kNotLit};
         } else {
           s.additions[s.n_additions++] = Scratch::Addition{weight * sky.radiance(ray.dir), seg.pixel, Scratch::kNotLit};
@@ -928,12 +925,14 @@ void render_tile(const Context& ctx, const SkyEval& sky, Scratch& s, const Pinho
     // The gradient sky's misses: SkyEval::gradient_t() a block at a time (lane by lane the same
     // normalisation, clamp and square root), then each addition's weight times the radiance.
     if (s.n_sky > 0) {
-      const size_t stride = s.block_stride, padded = (s.n_sky + render::kLitBlock - 1) / render::kLitBlock * render::kLitBlock;
-      for (size_t r = 0; r < 3; ++r) std::fill_n(s.sky_rows.data() + r * stride + s.n_sky, padded - s.n_sky, 0.0f);
-      for (size_t j = 0; j < s.n_sky; j += render::kLitBlock) render::gradient_t_block(s.sky_rows.data(), stride, j);
+      // The last block's unused lanes get harmless directions (their t is never read).
+      for (size_t k = s.n_sky; k % render::kLitBlock != 0; ++k)
+        for (int r = 0; r < 3; ++r) s.sky_rows[render::block_offset<render::kSkyRows>(r, k)] = 0.0f;
+      for (size_t j = 0; j < s.n_sky; j += render::kLitBlock)
+        render::gradient_t_block(s.sky_rows.data() + render::block_offset<render::kSkyRows>(0, j));
       for (size_t k = 0; k < s.n_sky; ++k) {
         Vec3& add = s.additions[s.sky_additions[k]].add;
-        add = add * sky.gradient_radiance(s.sky_rows[3 * stride + k]);
+        add = add * sky.gradient_radiance(s.sky_rows[render::block_offset<render::kSkyRows>(3, k)]);
       }
     }
 
@@ -944,10 +943,10 @@ void render_tile(const Context& ctx, const SkyEval& sky, Scratch& s, const Pinho
     const size_t nb = s.n_bounces;
     if (nb > 0) {
       // The last block's unused lanes get harmless inputs (never read back).
-      const size_t padded = (nb + render::kLitBlock - 1) / render::kLitBlock * render::kLitBlock;
-      for (int r = 0; r < render::kBounceInputs; ++r)
-        std::fill_n(s.bounce_rows.data() + static_cast<size_t>(r) * s.block_stride + nb, padded - nb, 0.0f);
-      for (size_t j = 0; j < nb; j += render::kLitBlock) render::bounce_block(s.bounce_rows.data(), s.block_stride, j);
+      for (size_t k = nb; k % render::kLitBlock != 0; ++k)
+        for (int r = 0; r < render::kBounceInputs; ++r) s.bounce_rows[render::block_offset<render::kBounceRows>(r, k)] = 0.0f;
+      for (size_t j = 0; j < nb; j += render::kLitBlock)
+        render::bounce_block(s.bounce_rows.data() + render::block_offset<render::kBounceRows>(0, j));
     }
     uint16_t run = paths.front().history;
     for (size_t b = 0; b < nb; ++b) {
