@@ -77,12 +77,10 @@ void power(const render::lit_detail::Fv* x, const render::lit_detail::Iv* n, ren
   *out = render::lit_detail::power_lanes(*x, *n);
 }
 void bounce_all(float* rows, size_t n) {
-  for (size_t j = 0; j < n; j += render::kLitBlock)
-    render::bounce_block(rows + render::block_offset<render::kBounceRows>(0, j));
+  render::for_each_block<render::kBounceRows>(rows, n, render::kBounceInputs, render::bounce_block);
 }
 void gradient_all(float* rows, size_t n) {
-  for (size_t j = 0; j < n; j += render::kLitBlock)
-    render::gradient_t_block(rows + render::block_offset<render::kSkyRows>(0, j));
+  render::for_each_block<render::kSkyRows>(rows, n, 3, render::gradient_t_block);
 }
 #if defined(__GNUC__) && !defined(__clang__) && defined(__x86_64__)
 [[gnu::flatten, gnu::target("arch=x86-64-v3")]] void bounce_all_v3(float* rows, size_t n) {

@@ -70,6 +70,17 @@ constexpr size_t block_offset(int r, size_t i) {
   return (i / kLitBlock) * (kRows * kLitBlock) + static_cast<size_t>(r) * kLitBlock + i % kLitBlock;
 }
 
+/// Runs \p f(block) on each block of the first \p n items of a blocked array (\p data, row r of
+/// item i at block_offset<kRows>(r, i); \p block points at a block's row 0). Rows [0, inputs)
+/// of the last block's unused items are zeroed first, so \p f reads harmless numbers there
+/// (its results for them are never read).
+template <int kRows, class F>
+void for_each_block(float* data, size_t n, int inputs, F&& f) {
+  for (size_t i = n; i % kLitBlock != 0; ++i)
+    for (int r = 0; r < inputs; ++r) data[block_offset<kRows>(r, i)] = 0.0f;
+  for (size_t j = 0; j < n; j += kLitBlock) f(data + block_offset<kRows>(0, j));
+}
+
 /// The lit points of one wavefront, structure of arrays in blocks, and per light the contributions
 /// evaluate_light() found for them. Storage only grows: reset() for every wavefront.
 class LitPoints {

@@ -924,16 +924,10 @@ void render_tile(const Context& ctx, const SkyEval& sky, Scratch& s, const Pinho
 
     // The gradient sky's misses: SkyEval::gradient_t() a block at a time (lane by lane the same
     // normalisation, clamp and square root), then each addition's weight times the radiance.
-    if (s.n_sky > 0) {
-      // The last block's unused lanes get harmless directions (their t is never read).
-      for (size_t k = s.n_sky; k % render::kLitBlock != 0; ++k)
-        for (int r = 0; r < 3; ++r) s.sky_rows[render::block_offset<render::kSkyRows>(r, k)] = 0.0f;
-      for (size_t j = 0; j < s.n_sky; j += render::kLitBlock)
-        render::gradient_t_block(s.sky_rows.data() + render::block_offset<render::kSkyRows>(0, j));
-      for (size_t k = 0; k < s.n_sky; ++k) {
-        Vec3& add = s.additions[s.sky_additions[k]].add;
-        add = add * sky.gradient_radiance(s.sky_rows[render::block_offset<render::kSkyRows>(3, k)]);
-      }
+    render::for_each_block<render::kSkyRows>(s.sky_rows.data(), s.n_sky, 3, render::gradient_t_block);
+    for (size_t k = 0; k < s.n_sky; ++k) {
+      Vec3& add = s.additions[s.sky_additions[k]].add;
+      add = add * sky.gradient_radiance(s.sky_rows[render::block_offset<render::kSkyRows>(3, k)]);
     }
 
     // The recorded mirror and dielectric hits: their directions a block at a time, then their
@@ -941,13 +935,7 @@ void render_tile(const Context& ctx, const SkyEval& sky, Scratch& s, const Pinho
     // ends where the bounce history changes). Evaluated hit by hit inside the loop above, these
     // dependent chains of square roots and divisions were waited on one hit after another.
     const size_t nb = s.n_bounces;
-    if (nb > 0) {
-      // The last block's unused lanes get harmless inputs (never read back).
-      for (size_t k = nb; k % render::kLitBlock != 0; ++k)
-        for (int r = 0; r < render::kBounceInputs; ++r) s.bounce_rows[render::block_offset<render::kBounceRows>(r, k)] = 0.0f;
-      for (size_t j = 0; j < nb; j += render::kLitBlock)
-        render::bounce_block(s.bounce_rows.data() + render::block_offset<render::kBounceRows>(0, j));
-    }
+    render::for_each_block<render::kBounceRows>(s.bounce_rows.data(), nb, render::kBounceInputs, render::bounce_block);
     uint16_t run = paths.front().history;
     for (size_t b = 0; b < nb; ++b) {
       const uint32_t i = s.bounces[b].ray;
