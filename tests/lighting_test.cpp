@@ -1,9 +1,11 @@
 // The block evaluation of lights (render::LitPoints) against render::sample_light(), the
 // one-point formula: the same contributions bit for bit, for every kind of point; and the block
 // evaluation of mirror and refraction directions (render::bounce_block()) against
-// render::bounce_reference(), and the gradient sky's blocks against SkyEval::gradient_t().
+// render::bounce_reference(), the gradient sky's blocks against SkyEval::gradient_t(), and the
+// Beer-Lambert exponentials (render::exp_in_place()) against std::exp.
 #include <gtest/gtest.h>
 
+#include <bit>
 #include <cmath>
 #include <cstring>
 #include <limits>
@@ -11,6 +13,7 @@
 #include <vector>
 
 #include "render/bounce.h"
+#include "render/exp_lanes.h"
 #include "render/lighting.h"
 #include "render/sky.h"
 
@@ -333,4 +336,50 @@ TEST(Lighting, GradientSkyBlocksGiveTheScalarBlendBitForBit) {
   }
   EXPECT_GT(above, 1000u);
   EXPECT_GT(below, 1000u);
+}
+
+// exp_in_place() against std::exp, float by float: every 61st bit pattern of all 2^32 (every
+// sign, binade and NaN class, ~70 million floats), the neighbourhoods of the boundaries (|x| =
+// 80, where the SIMD path hands over to std::exp; the overflow and underflow limits; zero), and
+// the special values, in runs of every length mod 4 starting at every alignment.
+TEST(Lighting, ExpLanesGiveStdExpBitForBit) {
+  std::vector<float> in;
+  for (uint64_t b = 0; b < (uint64_t{1} << 32); b += 61) in.push_back(std::bit_cast<float>(static_cast<uint32_t>(b)));
+  for (const float edge : {80.0f, 88.0f, 88.72283f, 103.27893f, 103.97208f, 0x1p-126f, 0x1p-149f, 1.0f})
+    for (const float sign : {1.0f, -1.0f}) {
+      const uint32_t c = std::bit_cast<uint32_t>(sign * edge);
+      for (uint32_t d = 0; d < 4096; ++d) {
+        in.push_back(std::bit_cast<float>(c + d));
+        in.push_back(std::bit_cast<float>(c - d));
+      }
+    }
+  for (const float v : {0.0f, -0.0f, std::numeric_limits<float>::infinity(), -std::numeric_limits<float>::infinity(),
+                        std::numeric_limits<float>::quiet_NaN(), -std::numeric_limits<float>::quiet_NaN(),
+                        std::numeric_limits<float>::signaling_NaN()})
+    in.push_back(v);
+  std::vector<float> out(in);
+  render::exp_in_place(out.data(), out.size());
+  size_t wrong = 0;
+  for (size_t i = 0; i < in.size(); ++i) {
+    const float want = std::exp(in[i]);
+    const bool same = std::isnan(want) ? std::isnan(out[i]) : std::bit_cast<uint32_t>(want) == std::bit_cast<uint32_t>(out[i]);
+    if (!same && ++wrong <= 5)
+      ADD_FAILURE() << "exp(" << std::hexfloat << in[i] << ") = " << out[i] << ", std::exp gives " << want;
+  }
+  EXPECT_EQ(wrong, 0u) << "of " << in.size() << " floats (SIMD path " << (render::exp_lanes_simd() ? "on" : "off") << ")";
+
+  // Short runs at every offset: the four-lane loop's tails and unaligned starts (around -1).
+  const size_t near_minus_one = 0xBF800000u / 61;
+  for (size_t start = 0; start < 4; ++start)
+    for (size_t len = 0; len <= 9; ++len) {
+      std::vector<float> x(in.begin() + static_cast<ptrdiff_t>(near_minus_one + start),
+                           in.begin() + static_cast<ptrdiff_t>(near_minus_one + start + len));
+      std::vector<float> y = x;
+      render::exp_in_place(y.data(), len);
+      for (size_t i = 0; i < len; ++i) {
+        const float want = std::exp(x[i]);
+        EXPECT_TRUE(std::isnan(want) ? std::isnan(y[i]) : std::bit_cast<uint32_t>(want) == std::bit_cast<uint32_t>(y[i]))
+            << "start " << start << ", length " << len << ", lane " << i;
+      }
+    }
 }

@@ -29,6 +29,7 @@
 
 #include "core/hash.h"
 #include "render/bounce.h"
+#include "render/exp_lanes.h"
 #include "render/fresnel.h"
 #include "render/lighting.h"
 #include "render/phong.h"
@@ -272,6 +273,7 @@ struct Scratch {
   std::vector<float> sky_rows;
   std::vector<Bounce> bounces;  ///< the wavefront's mirror / dielectric hits, in shading order
   size_t n_bounces = 0;
+  std::vector<float> exp_e;  ///< per ray in an absorbing medium: Beer-Lambert exponents, then transmittance
   std::vector<float> bounce_rows;  ///< their render::BounceRow rows, blocked (render::block_offset)
   render::LitPoints lit;  ///< the wavefront's lit hits
   std::vector<uint32_t> lit_global;   ///< per lit hit: its pixel's index in the film
@@ -381,6 +383,8 @@ struct Context {
   bool vertex_normals = false;  ///< the scene has one normal per vertex
   std::vector<ShadeMaterial> shade{};///< per scene material, then the fallback material
   std::vector<uint8_t> absorbing{};  ///< per scene material: some absorption coefficient > 0
+  std::vector<Vec3> neg_absorption{};  ///< per scene material: -absorption, 0 where absorption <= 0
+  bool any_absorbing = false;
   std::vector<LightSetup> lights{};  ///< lights that can contribute (power > 0)
   size_t shadow_per_hit = 0;          ///< most shadow rays one hit shoots (one per light sample)
   std::vector<size_t> light_first_sample{};  ///< per light: samples of the lights before it
@@ -405,14 +409,17 @@ struct Context {
   bool absorbs(int id) const { return id >= 0 && static_cast<size_t>(id) < absorbing.size() && absorbing[static_cast<size_t>(id)]; }
 };
 
-/// Beer-Lambert transmittance over \p dist inside medium \p id (1 outside any medium).
-Vec3 medium_attenuation(const Context& ctx, int id, float dist) {
-  if (id < 0 || static_cast<size_t>(id) >= ctx.scene.materials.size()) return Vec3{1.0f};
-  const Vec3& sigma = ctx.scene.materials[static_cast<size_t>(id)].absorption;
-  // Component by component in registers (no indexed stores that the caller reloads as a vector).
-  const bool finite = std::isfinite(dist);
-  const auto channel = [&](float sg) { return sg <= 0.0f ? 1.0f : (finite ? std::exp(-sg * dist) : 0.0f); };
-  return Vec3{channel(sigma.x), channel(sigma.y), channel(sigma.z)};
+/// The Beer-Lambert exponents of a segment of length \p dist inside absorbing medium \p id
+/// (Context::absorbs), written to \p e: their exponentials (render::exp_in_place, a wavefront's
+/// at once) are its transmittance, channel by channel the same numbers as
+/// sigma <= 0 ? 1 : (finite dist ? std::exp(-sigma * dist) : 0).
+void medium_exponents(const Context& ctx, int id, float dist, float* e) {
+  const Vec3& ns = ctx.neg_absorption[static_cast<size_t>(id)];  // -sigma, or 0 where sigma <= 0
+  if (std::isfinite(dist)) {
+    e[0] = ns.x * dist, e[1] = ns.y * dist, e[2] = ns.z * dist;
+  } else {  // e^0 = 1 where nothing attenuates, e^-inf = 0 elsewhere
+    e[0] = ns.x == 0.0f ? 0.0f : -kInf, e[1] = ns.y == 0.0f ? 0.0f : -kInf, e[2] = ns.z == 0.0f ? 0.0f : -kInf;
+  }
 }
 
 /// The per-pixel rotation of the sphere-light sample spiral (only sphere_light() computes it, so
@@ -884,6 +891,21 @@ void render_tile(const Context& ctx, const SkyEval& sky, Scratch& s, const Pinho
       s.n_next += s.n_refr;
       s.n_refr = 0;
     };
+    // Beer-Lambert over the segments inside absorbing media (a factor of exactly 1 outside:
+    // skipped): their transmittances first, all exponentials at once, in the loop's order.
+    // Unit directions: the distance is t.
+    size_t n_exp = 0;
+    if (ctx.any_absorbing) {
+      ensure_size(s.exp_e, 3 * n);
+      for (size_t i = 0; i < n; ++i) {
+        const int top = paths[i].media.top();
+        if (!ctx.absorbs(top)) continue;
+        const Hit& hit = s.hits[i];
+        medium_exponents(ctx, top, ctx.valid(hit) ? hit.t : kInf, s.exp_e.data() + 3 * n_exp++);
+      }
+      render::exp_in_place(s.exp_e.data(), 3 * n_exp);
+      n_exp = 0;
+    }
     for (size_t i = 0; i < n; ++i) {
       const Ray& ray = rays[i];
       const PathState& seg = paths[i];
@@ -891,8 +913,10 @@ void render_tile(const Context& ctx, const SkyEval& sky, Scratch& s, const Pinho
       const bool valid = ctx.valid(hit);
       Vec3 weight = seg.weight;
       const int top = seg.media.top();
-      // Beer-Lambert over the segment (a factor of exactly 1 outside absorbing media: skipped).
-      if (ctx.absorbs(top)) weight *= medium_attenuation(ctx, top, valid ? hit.t : kInf);  // unit directions
+      if (ctx.absorbs(top)) {
+        const float* const att = s.exp_e.data() + 3 * n_exp++;
+        weight *= Vec3{att[0], att[1], att[2]};
+      }
       const size_t gp = seg.global;
       if (seg.primary()) {
         if (ctx.want_depth) ctx.film.depth[gp] = valid ? hit.t * length(ray.dir) : kInf;
@@ -1087,6 +1111,9 @@ void render_whitted(const Scene& scene, const Tracer& tracer, const RenderOption
   for (const Material& m : scene.materials) {
     ctx.shade.push_back(make_shade_material(m, scene.ambient));
     ctx.absorbing.push_back(max_component(m.absorption) > 0.0f ? 1 : 0);
+    ctx.any_absorbing = ctx.any_absorbing || ctx.absorbing.back();
+    const auto neg = [](float sigma) { return sigma <= 0.0f ? 0.0f : -sigma; };  // -sigma * d is (-sigma) * d
+    ctx.neg_absorption.push_back(Vec3{neg(m.absorption.x), neg(m.absorption.y), neg(m.absorption.z)});
   }
   ctx.shade.push_back(make_shade_material(ctx.fallback, scene.ambient));
   for (const Light& light : scene.lights) {
