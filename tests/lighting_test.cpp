@@ -76,7 +76,7 @@ void evaluate_all(LitPoints& lit, const std::vector<TestLight>& lights) {
 }
 // Through pointers: a 32-byte vector passed by value travels in memory to baseline code and in
 // a register to AVX code (GCC's -Wpsabi note), so the clones could not share a signature.
-void power(const render::lit_detail::Fv* x, const render::lit_detail::Iv* n, render::lit_detail::Fv* out) {
+void power(const render::lanes::Fv* x, const render::lanes::Iv* n, render::lanes::Fv* out) {
   *out = render::lit_detail::power_lanes(*x, *n);
 }
 void bounce_all(float* rows, size_t n) {
@@ -104,14 +104,14 @@ void gradient_all(float* rows, size_t n) {
 [[gnu::flatten, gnu::target("arch=x86-64-v4")]] void evaluate_all_v4(LitPoints& lit, const std::vector<TestLight>& lights) {
   evaluate_all(lit, lights);
 }
-[[gnu::flatten, gnu::target("arch=x86-64-v3")]] void power_v3(const render::lit_detail::Fv* x,
-                                                               const render::lit_detail::Iv* n,
-                                                               render::lit_detail::Fv* out) {
+[[gnu::flatten, gnu::target("arch=x86-64-v3")]] void power_v3(const render::lanes::Fv* x,
+                                                               const render::lanes::Iv* n,
+                                                               render::lanes::Fv* out) {
   power(x, n, out);
 }
-[[gnu::flatten, gnu::target("arch=x86-64-v4")]] void power_v4(const render::lit_detail::Fv* x,
-                                                               const render::lit_detail::Iv* n,
-                                                               render::lit_detail::Fv* out) {
+[[gnu::flatten, gnu::target("arch=x86-64-v4")]] void power_v4(const render::lanes::Fv* x,
+                                                               const render::lanes::Iv* n,
+                                                               render::lanes::Fv* out) {
   power(x, n, out);
 }
 #endif
@@ -119,7 +119,7 @@ void gradient_all(float* rows, size_t n) {
 struct Clone {
   const char* name;
   void (*evaluate)(LitPoints&, const std::vector<TestLight>&);
-  void (*power)(const render::lit_detail::Fv*, const render::lit_detail::Iv*, render::lit_detail::Fv*);
+  void (*power)(const render::lanes::Fv*, const render::lanes::Iv*, render::lanes::Fv*);
   void (*bounce)(float*, size_t);
   void (*gradient)(float*, size_t);
 };
@@ -190,8 +190,8 @@ TEST(Lighting, BlocksGiveSampleLightsBitsForEveryPoint) {
 TEST(Lighting, BlockPowerIsPhongPowerForEveryWholeExponent) {
   std::mt19937 rng(3);
   std::uniform_real_distribution<float> u(0.0f, 1.0f);
-  using render::lit_detail::Fv;
-  using render::lit_detail::Iv;
+  using render::lanes::Fv;
+  using render::lanes::Iv;
   constexpr auto kMost = static_cast<int32_t>(kMaxSquaringExponent);
   // Lane k raises to min(e + step k, kMost): step 1 gives different exponents per block (the
   // largest last), step 0 one exponent in every lane (a block of hits on one material, which
@@ -199,20 +199,20 @@ TEST(Lighting, BlockPowerIsPhongPowerForEveryWholeExponent) {
   const auto check = [&](const Clone& clone, int32_t e, int32_t step) {
     Fv x;
     Iv n;
-    for (int k = 0; k < static_cast<int>(render::kLitBlock); ++k) {
+    for (int k = 0; k < static_cast<int>(render::kBlock); ++k) {
       x[k] = k == 0 ? 1.0f : (k == 1 ? 0.0f : u(rng));
       n[k] = std::min<int32_t>(e + step * k, kMost);
     }
     Fv p;
     clone.power(&x, &n, &p);
-    for (int k = 0; k < static_cast<int>(render::kLitBlock); ++k) {
+    for (int k = 0; k < static_cast<int>(render::kBlock); ++k) {
       const float want = phong_power(x[k], static_cast<float>(n[k]), static_cast<uint32_t>(n[k]));
       ASSERT_EQ(std::memcmp(&p[k], &want, sizeof want), 0)
           << clone.name << ": " << x[k] << "^" << n[k] << (step == 0 ? " (one exponent per block)" : "");
     }
   };
   for (const Clone& clone : clones()) {
-    for (int32_t e = 1; e <= kMost && !HasFatalFailure(); e += static_cast<int32_t>(render::kLitBlock)) check(clone, e, 1);
+    for (int32_t e = 1; e <= kMost && !HasFatalFailure(); e += static_cast<int32_t>(render::kBlock)) check(clone, e, 1);
     for (int32_t e = 1; e <= kMost && !HasFatalFailure(); ++e) check(clone, e, 0);
   }
 }
@@ -221,7 +221,7 @@ TEST(Lighting, BlockPowerIsPhongPowerForEveryWholeExponent) {
 template <int kRows>
 struct BlockRows {
   explicit BlockRows(size_t n)
-      : rows((n + render::kLitBlock - 1) / render::kLitBlock * kRows * render::kLitBlock, 0.0f) {}
+      : rows((n + render::kBlock - 1) / render::kBlock * kRows * render::kBlock, 0.0f) {}
   float& operator()(int r, size_t i) { return rows[render::block_offset<kRows>(r, i)]; }
   std::vector<float> rows;
 };

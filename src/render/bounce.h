@@ -1,5 +1,5 @@
 /// \file bounce.h
-/// The mirror and dielectric directions of the Whitted integrator's hits, a block of kLitBlock
+/// The mirror and dielectric directions of the Whitted integrator's hits, a block of kBlock
 /// hits at a time (internal to src/render; tested in tests/lighting_test.cpp).
 ///
 /// Per hit these are chains of dependent operations (a dot product, the Fresnel equations with
@@ -13,9 +13,10 @@
 #pragma once
 
 #include <cstddef>
+#include <cstring>
 
 #include "render/fresnel.h"
-#include "render/lighting.h"
+#include "render/lanes.h"
 #include "specula/math.h"
 
 namespace specula::render {
@@ -50,13 +51,13 @@ inline void bounce_reference(const Vec3& d, const Vec3& n, const Vec3& g, float 
   mirror = normalize(r);
 }
 
-/// bounce_reference() for one block of kLitBlock hits, stored block by block (row r of hit i at
+/// bounce_reference() for one block of kBlock hits, stored block by block (row r of hit i at
 /// block_offset<kBounceRows>(r, i); \p block points at the block's row 0): reads the input
 /// rows, writes the output rows.
 inline void bounce_block(float* block) {
-  using namespace lit_detail;
-  const auto in = [&](int r) { return load(block + static_cast<size_t>(r) * kLitBlock); };
-  const auto out = [&](int r, const auto& v) { std::memcpy(block + static_cast<size_t>(r) * kLitBlock, &v, sizeof v); };
+  using namespace lanes;
+  const auto in = [&](int r) { return load(block + static_cast<size_t>(r) * kBlock); };
+  const auto out = [&](int r, const auto& v) { std::memcpy(block + static_cast<size_t>(r) * kBlock, &v, sizeof v); };
   const Fv zero = splat(0.0f), one = splat(1.0f), minus_one = splat(-1.0f);
   const Fv dx = in(kBounceDx), dy = in(kBounceDy), dz = in(kBounceDz);
   const Fv nx = in(kBounceNx), ny = in(kBounceNy), nz = in(kBounceNz);

@@ -1,7 +1,7 @@
 /// \file lighting.h
 /// Direct lighting of the Whitted integrator's hits by one light (internal to src/render;
 /// tested in tests/lighting_test.cpp): sample_light() for one surface point, LitPoints for the
-/// lit points of a whole wavefront, evaluated light by light in blocks of kLitBlock points.
+/// lit points of a whole wavefront, evaluated light by light in blocks of kBlock points.
 ///
 /// Why blocks: for one point and one light the lighting is a single chain of dependent
 /// operations (a square root and a division to normalise the half vector, then up to twelve
@@ -18,6 +18,7 @@
 #include <cstring>
 #include <vector>
 
+#include "render/lanes.h"
 #include "render/phong.h"
 #include "specula/math.h"
 
@@ -56,31 +57,6 @@ inline bool sample_light(const LitPoint& q, const Vec3& l, const Vec3& irradianc
   return max_component(c) > 0.0f;
 }
 
-/// Points per block of the SIMD evaluation: eight floats fill an AVX2 register, the Phong
-/// power's doubles an AVX-512 one. (Sixteen, AVX-512 floats, made the water view's frame 28%
-/// slower on one pinned thread of the Zen 5 machine: 74.7 against 58.5 ms.)
-inline constexpr size_t kLitBlock = 8;
-
-/// Offset of row \p r of item \p i in a structure of arrays stored block by block: kLitBlock
-/// items, all kRows rows of a block together. A block's row is still one vector, and an item's
-/// rows sit at constant offsets from its first, so writing them takes no multiplication by a row
-/// length per row (which cost ~48 instructions per lit point when the rows were whole arrays).
-template <int kRows>
-constexpr size_t block_offset(int r, size_t i) {
-  return (i / kLitBlock) * (kRows * kLitBlock) + static_cast<size_t>(r) * kLitBlock + i % kLitBlock;
-}
-
-/// Runs \p f(block) on each block of the first \p n items of a blocked array (\p data, row r of
-/// item i at block_offset<kRows>(r, i); \p block points at a block's row 0). Rows [0, inputs)
-/// of the last block's unused items are zeroed first, so \p f reads harmless numbers there
-/// (its results for them are never read).
-template <int kRows, class F>
-void for_each_block(float* data, size_t n, int inputs, F&& f) {
-  for (size_t i = n; i % kLitBlock != 0; ++i)
-    for (int r = 0; r < inputs; ++r) data[block_offset<kRows>(r, i)] = 0.0f;
-  for (size_t j = 0; j < n; j += kLitBlock) f(data + block_offset<kRows>(0, j));
-}
-
 /// The lit points of one wavefront, structure of arrays in blocks, and per light the contributions
 /// evaluate_light() found for them. Storage only grows: reset() for every wavefront.
 class LitPoints {
@@ -88,7 +64,7 @@ class LitPoints {
   /// Empties the set and makes room for \p n points and \p lights lights.
   void reset(size_t n, size_t lights) {
     n_ = 0;
-    stride_ = (n + kLitBlock - 1) / kLitBlock * kLitBlock;
+    stride_ = (n + kBlock - 1) / kBlock * kBlock;
     grow(rows_, kRows * stride_);  // stride_ is a whole number of blocks
     grow(power_, stride_);
     grow(spec_, stride_);
@@ -166,87 +142,25 @@ class LitPoints {
   std::vector<int32_t> ok_;
 };
 
-// The helpers below pass 32- and 64-byte vectors by value. They are always inlined (into
-// render_tile, compiled for x86-64, x86-64-v3 and x86-64-v4), so GCC's -Wpsabi note about that
-// ABI is off for our targets (CMakeLists.txt).
 namespace lit_detail {
-
-using Fv = float __attribute__((vector_size(4 * kLitBlock)));
-using Iv = int32_t __attribute__((vector_size(4 * kLitBlock)));
-
-#define SPECULA_LIT_INLINE inline __attribute__((always_inline))
-
-SPECULA_LIT_INLINE Fv load(const float* p) {
-  Fv v;
-  std::memcpy(&v, p, sizeof v);
-  return v;
-}
-SPECULA_LIT_INLINE Iv load(const int32_t* p) {
-  Iv v;
-  std::memcpy(&v, p, sizeof v);
-  return v;
-}
-SPECULA_LIT_INLINE Fv splat(float x) {
-  Fv v;
-  for (size_t i = 0; i < kLitBlock; ++i) v[i] = x;
-  return v;
-}
-template <class To, class From>
-SPECULA_LIT_INLINE To bits(const From& f) {
-  static_assert(sizeof(To) == sizeof(From));
-  To t;
-  std::memcpy(&t, &f, sizeof t);
-  return t;
-}
-/// Lane by lane m ? a : b, for masks of all ones or all zeros (comparison results).
-SPECULA_LIT_INLINE Fv select(Iv m, Fv a, Fv b) { return bits<Fv>((m & bits<Iv>(a)) | (~m & bits<Iv>(b))); }
-
-/// Correctly rounded square roots (the scalar std::sqrt's bits). whitted.cpp is compiled with
-/// -fno-math-errno, which lets GCC make this one vector instruction per register.
-SPECULA_LIT_INLINE Fv sqrt_lanes(Fv x) {
-  Fv r;
-  for (size_t i = 0; i < kLitBlock; ++i) r[i] = std::sqrt(x[i]);
-  return r;
-}
-
-/// std::clamp(v, lo, hi) lane by lane: v < lo ? lo : (hi < v ? hi : v).
-SPECULA_LIT_INLINE Fv clamp_lanes(Fv v, Fv lo, Fv hi) { return select(v < lo, lo, select(hi < v, hi, v)); }
-
-/// normalize() lane by lane: (x, y, z) times 1 / length, or zero unless the length is finite
-/// and positive.
-SPECULA_LIT_INLINE void normalize_lanes(Fv& x, Fv& y, Fv& z) {
-  const Fv zero{}, one = splat(1.0f);
-  const Fv len = sqrt_lanes(x * x + y * y + z * z);
-  const Iv unit = (len > zero) & (len <= splat(FLT_MAX));
-  const Fv inv = one / len;
-  x = select(unit, x * inv, zero), y = select(unit, y * inv, zero), z = select(unit, z * inv, zero);
-}
-
-/// Half a block's lanes in double: four doubles fill an AVX2 register. power_lanes() works on two
-/// such halves rather than one eight-double vector, which AVX2 has no register for: GCC lowered
-/// that one's 64-bit compares and selects lane by lane through the stack, which cost the
-/// x86-64-v3 clone of render_tile 87.8 against 68.0 ms for the water view on an Intel Xeon
-/// (AVX-512 machines run the x86-64-v4 clone, which had no such trouble).
-using Dh = double __attribute__((vector_size(4 * kLitBlock)));
-using Lh = int64_t __attribute__((vector_size(4 * kLitBlock)));
-SPECULA_LIT_INLINE Dh select(Lh m, Dh a, Dh b) { return bits<Dh>((m & bits<Lh>(a)) | (~m & bits<Lh>(b))); }
 
 /// phong_power() of a block's lanes with whole exponents \p n (>= 1 where used): the same products
 /// in double, lane by lane; a lane whose exponent has fewer bits only squares its base further,
 /// which its result never uses.
-SPECULA_LIT_INLINE Fv power_lanes(Fv x, Iv n32) {
-  static_assert(kLitBlock == 8, "power_lanes() splits a block into two halves of four lanes");
+SPECULA_LANES_INLINE lanes::Fv power_lanes(lanes::Fv x, lanes::Iv n32) {
+  using namespace lanes;
+  static_assert(kBlock == 8, "power_lanes() splits a block into two halves of four lanes");
   int32_t most = 0;
-  for (size_t i = 0; i < kLitBlock; ++i) most = std::max(most, n32[i]);
+  for (size_t i = 0; i < kBlock; ++i) most = std::max(most, n32[i]);
   Dh b0 = __builtin_convertvector(__builtin_shufflevector(x, x, 0, 1, 2, 3), Dh);
   Dh b1 = __builtin_convertvector(__builtin_shufflevector(x, x, 4, 5, 6, 7), Dh);
   const Lh n0 = __builtin_convertvector(__builtin_shufflevector(n32, n32, 0, 1, 2, 3), Lh);
   const Lh n1 = __builtin_convertvector(__builtin_shufflevector(n32, n32, 4, 5, 6, 7), Lh);
   const Lh none{}, one_bit = none + 1;
   Dh unit;
-  for (size_t i = 0; i < kLitBlock / 2; ++i) unit[i] = 1.0;
+  for (size_t i = 0; i < kBlock / 2; ++i) unit[i] = 1.0;
   bool uniform = true;  // one exponent in every lane: neighbouring hits on one material
-  for (size_t i = 1; i < kLitBlock; ++i) uniform = uniform && n32[i] == n32[0];
+  for (size_t i = 1; i < kBlock; ++i) uniform = uniform && n32[i] == n32[0];
   Dh r0, r1;
   if (uniform) {
     // The same products, with the exponent's bits tested once for the block instead of a
@@ -268,7 +182,7 @@ SPECULA_LIT_INLINE Fv power_lanes(Fv x, Iv n32) {
       r1 = select(((n1 >> k) & one_bit) != none, r1 * b1, r1);
     }
   }
-  using Fh = float __attribute__((vector_size(2 * kLitBlock)));
+  using Fh = float __attribute__((vector_size(2 * kBlock)));
   const Fh f0 = __builtin_convertvector(r0, Fh), f1 = __builtin_convertvector(r1, Fh);
   return __builtin_shufflevector(f0, f1, 0, 1, 2, 3, 4, 5, 6, 7);
 }
@@ -277,13 +191,14 @@ SPECULA_LIT_INLINE Fv power_lanes(Fv x, Iv n32) {
 
 inline void LitPoints::evaluate_light(size_t light, bool directional, const Vec3& dir, const Vec3& position,
                                       const Vec3& power) {
-  using namespace lit_detail;
+  using namespace lanes;
+  using lit_detail::power_lanes;
   const Fv zero = splat(0.0f), one = splat(1.0f);
   float* const cx = c_.data() + 3 * light * stride_;
   float* const cy = cx + stride_;
   float* const cz = cy + stride_;
   int32_t* const ok = ok_.data() + light * stride_;
-  for (size_t j = 0; j < n_; j += kLitBlock) {
+  for (size_t j = 0; j < n_; j += kBlock) {
     const auto at = [&](int r) { return load(rows_.data() + offset(r, j)); };
     const Fv px = at(0), py = at(1), pz = at(2);
     // The light's direction and irradiance at the points (sample_light's l and irradiance).

@@ -4,8 +4,9 @@
 
 #include <algorithm>
 #include <cmath>
+#include <cstring>
 
-#include "render/lighting.h"
+#include "render/lanes.h"
 #include "specula/math.h"
 #include "specula/scene.h"
 
@@ -44,15 +45,15 @@ namespace render {
 /// block by block: row r of direction i at block_offset<kSkyRows>(r, i).
 inline constexpr int kSkyRows = 4;
 
-/// SkyEval::gradient_t() for one block of kLitBlock directions (\p block points at its row 0):
+/// SkyEval::gradient_t() for one block of kBlock directions (\p block points at its row 0):
 /// writes row 3. Lane by lane the same normalisation, clamp and square root, so the same bits
 /// (tests/lighting_test.cpp).
 inline void gradient_t_block(float* block) {
-  using namespace lit_detail;
-  Fv dx = load(block), dy = load(block + kLitBlock), dz = load(block + 2 * kLitBlock);
+  using namespace lanes;
+  Fv dx = load(block), dy = load(block + kBlock), dz = load(block + 2 * kBlock);
   normalize_lanes(dx, dy, dz);
   const Fv t = sqrt_lanes(clamp_lanes(dy, splat(0.0f), splat(1.0f)));
-  std::memcpy(block + 3 * kLitBlock, &t, sizeof t);
+  std::memcpy(block + 3 * kBlock, &t, sizeof t);
 }
 
 }  // namespace render

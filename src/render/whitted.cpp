@@ -31,6 +31,7 @@
 #include "render/bounce.h"
 #include "render/exp_lanes.h"
 #include "render/fresnel.h"
+#include "render/lanes.h"
 #include "render/lighting.h"
 #include "render/phong.h"
 #include "render/sky.h"
@@ -680,7 +681,7 @@ void shade_hit(const Context& ctx, Scratch& s, const Ray& ray, const PathState& 
   b.eta = eta;
   float* const cell = s.bounce_rows.data() + render::block_offset<render::kBounceRows>(0, k);
   const float in[render::kBounceInputs] = {d.x, d.y, d.z, ns_f.x, ns_f.y, ns_f.z, ng_f.x, ng_f.y, ng_f.z, eta};
-  for (int r = 0; r < render::kBounceInputs; ++r) cell[static_cast<size_t>(r) * render::kLitBlock] = in[r];
+  for (int r = 0; r < render::kBounceInputs; ++r) cell[static_cast<size_t>(r) * render::kBlock] = in[r];
 }
 
 /// The mirror and refraction rays of recorded hit \p k (segment \p seg, incoming direction \p d),
@@ -691,7 +692,7 @@ void shade_hit(const Context& ctx, Scratch& s, const Ray& ray, const PathState& 
 void bounce(const Context& ctx, Scratch& s, const Vec3& d, const PathState& seg, size_t k) {
   const Bounce& b = s.bounces[k];
   const float* const cell = s.bounce_rows.data() + render::block_offset<render::kBounceRows>(0, k);
-  const auto at = [&](int r) { return cell[static_cast<size_t>(r) * render::kLitBlock]; };
+  const auto at = [&](int r) { return cell[static_cast<size_t>(r) * render::kBlock]; };
   const Vec3 ng_f{at(render::kBounceGx), at(render::kBounceGy), at(render::kBounceGz)};
   const Vec3& p = b.p;
   const Vec3& weight = b.weight;
@@ -702,7 +703,7 @@ void bounce(const Context& ctx, Scratch& s, const Vec3& d, const PathState& seg,
     const float trans = b.trans;
     float fr = at(render::kBounceFr);
     int32_t ok_bits;
-    std::memcpy(&ok_bits, cell + static_cast<size_t>(render::kBounceOk) * render::kLitBlock, sizeof ok_bits);
+    std::memcpy(&ok_bits, cell + static_cast<size_t>(render::kBounceOk) * render::kBlock, sizeof ok_bits);
     bool ok = ok_bits != 0;
     if (ok) refr_dir = Vec3{at(render::kBounceTx), at(render::kBounceTy), at(render::kBounceTz)};
     if (!ok && fr < 1.0f) {  // the shading normal bent the ray back: use the geometric one
@@ -876,10 +877,10 @@ void render_tile(const Context& ctx, const SkyEval& sky, Scratch& s, const Pinho
     s.n_additions = 0;
     ensure_size(s.bounces, n);
     s.n_bounces = 0;
-    const size_t blocks = (n + render::kLitBlock - 1) / render::kLitBlock;
-    ensure_size(s.bounce_rows, blocks * render::kBounceRows * render::kLitBlock);
+    const size_t blocks = (n + render::kBlock - 1) / render::kBlock;
+    ensure_size(s.bounce_rows, blocks * render::kBounceRows * render::kBlock);
     ensure_size(s.sky_additions, n);
-    ensure_size(s.sky_rows, blocks * render::kSkyRows * render::kLitBlock);
+    ensure_size(s.sky_rows, blocks * render::kSkyRows * render::kBlock);
     s.n_sky = 0;
     s.lit.reset(n, ctx.lights.size());
     ensure_size(s.lit_global, n);
@@ -928,8 +929,8 @@ void render_tile(const Context& ctx, const SkyEval& sky, Scratch& s, const Pinho
           s.sky_additions[k] = static_cast<uint32_t>(s.n_additions);
           float* const cell = s.sky_rows.data() + render::block_offset<render::kSkyRows>(0, k);
           cell[0] = ray.dir.x;
-          cell[render::kLitBlock] = ray.dir.y;
-          cell[2 * render::kLitBlock] = ray.dir.z;
+          cell[render::kBlock] = ray.dir.y;
+          cell[2 * render::kBlock] = ray.dir.z;
           s.additions[s.n_additions++] = Scratch::Addition{weight, seg.pixel, Scratch::kNotLit};
         } else {
           s.additions[s.n_additions++] = Scratch::Addition{weight * sky.radiance(ray.dir), seg.pixel, Scratch::kNotLit};
