@@ -518,6 +518,15 @@ TEST_F(Cli, BenchTraceJsonHasEveryRayKindAndTheKernel) {
     }
   }
   EXPECT_EQ(kinds, (std::vector<std::string>{"build", "primary", "shadow", "reflection", "refraction", "diffuse", "random"}));
+  // --embree-robust: Embree's watertight test (RTC_SCENE_FLAG_ROBUST), named in the JSON.
+  if (j["embree"].get<bool>()) {
+    EXPECT_EQ(j["embree_scene_flags"], "none");
+    const RunResult rb = run_cli("bench trace --scene cornell --width 24 --height 16 --repeat 1 --embree-robust --json", dir_);
+    ASSERT_EQ(rb.exit_code, 0) << rb.err;
+    const nlohmann::json rj = nlohmann::json::parse(rb.out);
+    EXPECT_EQ(rj["embree_scene_flags"], "robust");
+    for (const auto& k : rj["results"]) EXPECT_GT(k["embree_1t"].get<double>(), 0.0) << k.dump();
+  }
   // The table names the same kinds.
   const RunResult t = run_cli("bench trace --scene cornell --width 24 --height 16 --repeat 1 --no-embree", dir_);
   ASSERT_EQ(t.exit_code, 0) << t.err;

@@ -325,9 +325,9 @@ int bench_trace(const BenchTraceOptions& options) {
   if (with_embree) {
     for (int i = 0; i < repeat; ++i) {
       double ms = 0.0;
-      embree1 = std::make_unique<EmbreeTracer>(input, 1, &ms);
+      embree1 = std::make_unique<EmbreeTracer>(input, 1, &ms, options.embree_robust);
       e1.push_back(ms);
-      embreen = std::make_unique<EmbreeTracer>(input, threads, &ms);
+      embreen = std::make_unique<EmbreeTracer>(input, threads, &ms, options.embree_robust);
       en.push_back(ms);
     }
   }
@@ -419,6 +419,7 @@ int bench_trace(const BenchTraceOptions& options) {
                     {"bytes", zones.bytes},
                     {"build_ms_1t", zones.ms}};
     j["embree"] = with_embree;
+    if (with_embree) j["embree_scene_flags"] = options.embree_robust ? "robust" : "none";
     nlohmann::ordered_json kinds = nlohmann::ordered_json::array();
     for (const Row& r : rows) {
       nlohmann::ordered_json k;
@@ -502,7 +503,14 @@ int bench_trace(const BenchTraceOptions& options) {
       std::printf("\n");
     }
   }
-  if (with_embree) std::printf("(ratio > 1: specula faster; build ratio = embree ms / specula ms)\n");
+  if (with_embree) {
+    std::printf("(ratio > 1: specula faster; build ratio = embree ms / specula ms)\n");
+    std::printf("%s\n", options.embree_robust
+                             ? "(Embree with RTC_SCENE_FLAG_ROBUST, its robust mode: the closest to our watertight "
+                               "triangle test)"
+                             : "(Embree's default mode, whose triangle test is not watertight; ours is: "
+                               "--embree-robust compares with Embree's robust mode)");
+  }
 #ifndef SPECULA_HAVE_EMBREE
   std::printf("(Embree comparison not compiled in: install libembree-dev 3 and reconfigure)\n");
 #endif

@@ -59,6 +59,7 @@ struct BenchTraceOptions {
   BvhOptions bvh;
   LoadOptions load;
   bool embree = true;          ///< compare against Embree when compiled in
+  bool embree_robust = false;  ///< --embree-robust: Embree with RTC_SCENE_FLAG_ROBUST
   bool json = false;           ///< --json: print the results as JSON instead of a table
 };
 

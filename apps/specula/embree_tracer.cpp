@@ -26,12 +26,14 @@ void check_device(RTCDevice device, const char* what) {
 }
 }  // namespace
 
-EmbreeTracer::EmbreeTracer(const TriangleInput& input, int threads, double* build_ms) : impl_(std::make_unique<Impl>()) {
+EmbreeTracer::EmbreeTracer(const TriangleInput& input, int threads, double* build_ms, bool robust)
+    : impl_(std::make_unique<Impl>()) {
   const std::string config = threads > 0 ? "threads=" + std::to_string(threads) : std::string();
   impl_->device = rtcNewDevice(config.c_str());
   if (!impl_->device) throw Error("embree: rtcNewDevice failed");
   impl_->scene = rtcNewScene(impl_->device);
   rtcSetSceneBuildQuality(impl_->scene, RTC_BUILD_QUALITY_MEDIUM);
+  if (robust) rtcSetSceneFlags(impl_->scene, RTC_SCENE_FLAG_ROBUST);
   const size_t nv = input.positions.size(), nt = input.indices.size() / 3;
   RTCGeometry geom = rtcNewGeometry(impl_->device, RTC_GEOMETRY_TYPE_TRIANGLE);
   rtcSetGeometryBuildQuality(geom, RTC_BUILD_QUALITY_MEDIUM);

@@ -13,7 +13,9 @@
 
 namespace specula::cli {
 
-/// Triangle scene in Embree (RTC_BUILD_QUALITY_MEDIUM, one geometry). Queries use
+/// Triangle scene in Embree (RTC_BUILD_QUALITY_MEDIUM, one geometry; with \p robust,
+/// RTC_SCENE_FLAG_ROBUST: robust traversal and no accuracy-reducing optimisations, Embree's
+/// answer to rays slipping between neighbouring triangles). Queries use
 /// rtcIntersect1 / rtcOccluded1 per ray, like our single-ray traversal, or, after
 /// use_packets(true), rtcIntersect16 / rtcOccluded16 on each group of 16 consecutive rays with a
 /// coherent-rays context (Embree's best on coherent packets). transmittance() is a plain
@@ -23,7 +25,7 @@ class EmbreeTracer final : public Tracer {
   /// \p threads: 0 = Embree's default (all hardware threads), else "threads=N" and the build
   /// run in a TBB arena of N threads.
   /// \p build_ms receives the rtcCommitScene time.
-  EmbreeTracer(const TriangleInput& input, int threads, double* build_ms = nullptr);
+  EmbreeTracer(const TriangleInput& input, int threads, double* build_ms = nullptr, bool robust = false);
   ~EmbreeTracer() override;
   EmbreeTracer(const EmbreeTracer&) = delete;
   EmbreeTracer& operator=(const EmbreeTracer&) = delete;

@@ -317,7 +317,13 @@ static int run(int argc, char** argv) {
   bench_trace_cmd->add_option("--repeat", bench.repeat, "passes per measurement (median printed)")
       ->check(CLI::Range(1, 1000))
       ->capture_default_str();
-  bench_trace_cmd->add_flag("!--no-embree", bench.embree, "do not run the Embree comparison");
+  CLI::Option* no_embree = bench_trace_cmd->add_flag("!--no-embree", bench.embree, "do not run the Embree comparison");
+  bench_trace_cmd->add_flag("--embree-robust", bench.embree_robust,
+                            "build Embree's scene with RTC_SCENE_FLAG_ROBUST (robust traversal, no optimisations "
+                            "that reduce accuracy: against rays slipping between neighbouring triangles), the "
+                            "closest Embree comes to our watertight triangle test; by default it runs its faster, "
+                            "non-watertight one")
+      ->excludes(no_embree);
   bench_trace_cmd->add_flag("--json", bench.json,
                             "print the results as one JSON object (scene, BVH figures, per ray kind: Mrays/s "
                             "of specula and Embree on 1 and all threads, ratios) instead of the table");
