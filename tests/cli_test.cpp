@@ -516,6 +516,13 @@ TEST_F(Cli, BenchTraceJsonHasEveryRayKindAndTheKernel) {
     if (j["embree"].get<bool>()) {
       EXPECT_GT(k["ratio_1t"].get<double>(), 0.0) << k.dump();
     }
+    // Every ray visits the root at least; a triangle count per ray is reported too.
+    if (k["kind"] != "build") {
+      EXPECT_GE(k["nodes_per_ray"].get<double>(), 1.0) << k.dump();
+      EXPECT_GE(k["triangles_per_ray"].get<double>(), 0.0) << k.dump();
+    } else {
+      EXPECT_FALSE(k.contains("nodes_per_ray")) << k.dump();
+    }
   }
   EXPECT_EQ(kinds, (std::vector<std::string>{"build", "primary", "shadow", "reflection", "refraction", "diffuse", "random"}));
   // --embree-robust: Embree's watertight test (RTC_SCENE_FLAG_ROBUST), named in the JSON.
@@ -532,6 +539,7 @@ TEST_F(Cli, BenchTraceJsonHasEveryRayKindAndTheKernel) {
   ASSERT_EQ(t.exit_code, 0) << t.err;
   for (const char* k : {"primary", "shadow", "reflection", "refraction", "diffuse", "random"})
     EXPECT_NE(t.out.find(std::string("\n") + k + " "), std::string::npos) << k << "\n" << t.out;
+  EXPECT_NE(t.out.find("nodes/ray"), std::string::npos) << t.out;
   EXPECT_NE(t.out.find("\ncpu: "), std::string::npos) << t.out;  // which processor the figures are from
   EXPECT_NE(run_cli("bench trace --scene cornell --bvh-kernel avx9", dir_).exit_code, 0);
   // --mesh replaces --scene: both at once is a usage error, not one of them silently dropped.

@@ -340,6 +340,7 @@ int bench_trace(const BenchTraceOptions& options) {
     const char* unit;
     double s1, sn, e1, en;
     bool lower_is_better;
+    double nodes = 0.0, triangles = 0.0;  ///< ours, per ray (single-ray kinds)
   };
   std::vector<Row> rows;
   double em1 = 0, emn = 0;
@@ -355,10 +356,28 @@ int bench_trace(const BenchTraceOptions& options) {
 #ifdef SPECULA_HAVE_EMBREE
   if (with_embree) e1t = embree1.get(), ent = embreen.get();
 #endif
+  // What a ray of each kind costs our tree, from an extra pass with statistics (untimed).
+  const auto work = [](const Tracer& tracer, const RaySet& set) {
+    TraceStats st;
+    if (set.shadow) {
+      std::vector<Vec3> tr(set.rays.size());
+      tracer.transmittance(set.rays, tr, &st);
+    } else {
+      std::vector<Hit> hits(set.rays.size());
+      tracer.intersect(set.rays, hits, &st);
+    }
+    return st;
+  };
   for (const RaySet& set : sets) {
     const auto [s1, x1] = trace_mrays(*bvh, e1t, set, 1, repeat);
     const auto [sn, xn] = trace_mrays(*bvh, ent, set, threads, repeat);
-    rows.push_back({set.name, set.rays.size(), "Mrays/s", s1, sn, x1, xn, false});
+    Row row{set.name, set.rays.size(), "Mrays/s", s1, sn, x1, xn, false};
+    if (!set.rays.empty()) {
+      const TraceStats st = work(*bvh, set);
+      row.nodes = static_cast<double>(st.nodes_visited) / static_cast<double>(set.rays.size());
+      row.triangles = static_cast<double>(st.triangles_tested) / static_cast<double>(set.rays.size());
+    }
+    rows.push_back(row);
   }
   // Packets: ours against rtcIntersect16 / rtcOccluded16 on the same block-ordered rays, with
   // the share of the rays our tracer actually put in packets.
@@ -376,16 +395,7 @@ int bench_trace(const BenchTraceOptions& options) {
       for (Tracer* e : {embree1.get(), embreen.get()}) static_cast<EmbreeTracer*>(e)->use_packets(false);
 #endif
     packet_rows.push_back({set.name, set.rays.size(), "Mrays/s", s1, sn, x1, xn, false});
-    TraceStats st;
-    if (!set.rays.empty()) {
-      if (set.shadow) {
-        std::vector<Vec3> tr(set.rays.size());
-        bvh_packets->transmittance(set.rays, tr, &st);
-      } else {
-        std::vector<Hit> hits(set.rays.size());
-        bvh_packets->intersect(set.rays, hits, &st);
-      }
-    }
+    const TraceStats st = set.rays.empty() ? TraceStats{} : work(*bvh_packets, set);
     packet_share.push_back(st.rays > 0 ? static_cast<double>(st.packet_rays) / static_cast<double>(st.rays) : 0.0);
   }
   const auto ratio = [](const Row& r, double ours, double theirs) {
@@ -428,6 +438,10 @@ int bench_trace(const BenchTraceOptions& options) {
       k["unit"] = r.unit;
       k["specula_1t"] = r.s1;
       k["specula_nt"] = r.sn;
+      if (r.name != "build") {
+        k["nodes_per_ray"] = r.nodes;
+        k["triangles_per_ray"] = r.triangles;
+      }
       if (with_embree) {
         k["embree_1t"] = r.e1;
         k["embree_nt"] = r.en;
@@ -466,7 +480,7 @@ int bench_trace(const BenchTraceOptions& options) {
   if (with_embree)
     std::printf(" | %12s %12s | %9s %9s", "embree 1T", ("embree " + std::to_string(threads) + "T").c_str(), "ours/e 1T",
                 ("ours/e " + std::to_string(threads) + "T").c_str());
-  std::printf("\n");
+  std::printf(" | %9s %9s\n", "nodes/ray", "tris/ray");
   for (const Row& r : rows) {
     std::printf("%-10s %9zu %8s | %12s %12s", r.name.c_str(), r.count, r.unit, fmt("%.2f", r.s1).c_str(),
                 fmt("%.2f", r.sn).c_str());
@@ -478,7 +492,10 @@ int bench_trace(const BenchTraceOptions& options) {
       std::printf(" | %12s %12s | %9s %9s", fmt("%.2f", r.e1).c_str(), fmt("%.2f", r.en).c_str(), rt(r.s1, r.e1).c_str(),
                   rt(r.sn, r.en).c_str());
     }
-    std::printf("\n");
+    if (r.name == "build")
+      std::printf(" | %9s %9s\n", "", "");
+    else
+      std::printf(" | %9s %9s\n", fmt("%.2f", r.nodes).c_str(), fmt("%.2f", r.triangles).c_str());
   }
   if (!packet_rows.empty()) {
     std::printf("\npackets: 16 rays in 4x4 pixel blocks; Embree rtcIntersect16 / rtcOccluded16 (coherent context)\n");
