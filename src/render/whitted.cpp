@@ -389,25 +389,34 @@ struct Context {
   std::vector<LightSetup> lights{};  ///< lights that can contribute (power > 0)
   size_t shadow_per_hit = 0;          ///< most shadow rays one hit shoots (one per light sample)
   std::vector<size_t> light_first_sample{};  ///< per light: samples of the lights before it
+  // The sizes the shading loop checks indices against, as plain numbers (a vector's size is two
+  // loads, a subtraction and, for the triangles, a division per check, redone after every call
+  // the compiler cannot see into).
+  size_t n_triangles = 0, n_materials = 0, n_material_ids = 0, n_lights = 0;
+
+  /// Sets the numbers above (after `lights` is filled).
+  void count() {
+    n_triangles = scene.triangle_count();
+    n_materials = scene.materials.size();
+    n_material_ids = scene.material_ids.size();
+    n_lights = lights.size();
+  }
 
   /// Whether a hit record refers to something this context can shade.
   bool valid(const Hit& hit) const {
     if (!hit.hit()) return false;
-    return voxels ? true : hit.prim < scene.triangle_count();
+    return voxels ? true : hit.prim < n_triangles;
   }
 
   /// Index into `shade` of material id \p id (the fallback for an invalid id).
-  size_t shade_index(uint32_t id) const { return id < scene.materials.size() ? id : scene.materials.size(); }
-  uint32_t material_id(uint32_t prim) const {
-    return prim < scene.material_ids.size() ? scene.material_ids[prim] : 0xFFFFFFFFu;
-  }
+  size_t shade_index(uint32_t id) const { return id < n_materials ? id : n_materials; }
+  uint32_t material_id(uint32_t prim) const { return prim < n_material_ids ? scene.material_ids[prim] : 0xFFFFFFFFu; }
   float medium_ior(int id) const {
-    return (id >= 0 && static_cast<size_t>(id) < scene.materials.size())
-               ? scene.materials[static_cast<size_t>(id)].ior
-               : 1.0f;
+    return (id >= 0 && static_cast<size_t>(id) < n_materials) ? scene.materials[static_cast<size_t>(id)].ior : 1.0f;
   }
-  /// Whether medium \p id attenuates (Beer-Lambert with some coefficient > 0).
-  bool absorbs(int id) const { return id >= 0 && static_cast<size_t>(id) < absorbing.size() && absorbing[static_cast<size_t>(id)]; }
+  /// Whether medium \p id attenuates (Beer-Lambert with some coefficient > 0); `absorbing` has one
+  /// entry per scene material.
+  bool absorbs(int id) const { return id >= 0 && static_cast<size_t>(id) < n_materials && absorbing[static_cast<size_t>(id)]; }
 };
 
 /// The Beer-Lambert exponents of a segment of length \p dist inside absorbing medium \p id
@@ -502,7 +511,7 @@ template <class Emit>
       s.shadow_key[k] = (uint32_t{s.lit_history[j]} << 8) | static_cast<uint32_t>(std::min<size_t>(index, 255));
   };
 
-  for (size_t li = 0; li < ctx.lights.size(); ++li) {
+  for (size_t li = 0; li < ctx.n_lights; ++li) {
     const LightSetup& light = ctx.lights[li];
     Vec3 c;
     if (light.type == LightType::Directional) {
@@ -535,7 +544,7 @@ template <class Emit>
 /// and point lights evaluated for all lit hits at once, then every addition in turn.
 [[gnu::always_inline]] inline void add_shading(const Context& ctx, Scratch& s) {
   if (s.lit.size() > 0)
-    for (size_t li = 0; li < ctx.lights.size(); ++li) {
+    for (size_t li = 0; li < ctx.n_lights; ++li) {
       const LightSetup& light = ctx.lights[li];
       if (light.type == LightType::Directional || light.point)
         s.lit.evaluate_light(li, light.type == LightType::Directional, light.l, light.position, light.power);
@@ -1145,6 +1154,7 @@ void render_whitted(const Scene& scene, const Tracer& tracer, const RenderOption
     ctx.light_first_sample.push_back(ctx.shadow_per_hit);
     ctx.shadow_per_hit += ls.rr.empty() ? 1 : ls.rr.size();
   }
+  ctx.count();
 
   const SkyEval sky(scene.sky);
   const PinholeCamera camera(cam, w, h);
