@@ -239,12 +239,12 @@ TEST(Lighting, BounceBlocksGiveTheScalarDirectionsBitForBit) {
   std::mt19937 rng(11);
   std::uniform_real_distribution<float> u(0.0f, 1.0f);
   static const float kEta[] = {1.0f, 1.0f / 1.33f, 1.33f, 1.0f / 1.5f, 1.5f, 2.42f, 1.0f / 2.42f, 0.5f};
-  size_t refracted = 0, total_reflection = 0, geometric_mirror = 0;
+  size_t refracted = 0, total_reflection = 0, geometric_mirror = 0, nudged = 0;
   for (const Clone& clone : clones()) {
     SCOPED_TRACE(clone.name);
     for (const size_t n : {size_t{4001}, size_t{8}, size_t{3}}) {
       BlockRows<render::kBounceRows> cell(n);
-      std::vector<Vec3> d(n), sn(n), g(n);
+      std::vector<Vec3> d(n), sn(n), g(n), p(n);
       std::vector<float> eta(n);
       for (size_t i = 0; i < n; ++i) {
         // As the integrator records them: unit directions, normals facing the incoming ray (the
@@ -254,6 +254,13 @@ TEST(Lighting, BounceBlocksGiveTheScalarDirectionsBitForBit) {
         if (dot(d[i], g[i]) > 0.0f) d[i] = -d[i];
         sn[i] = i % 4 == 0 ? g[i] : normalize(g[i] + random_unit(rng) * (i % 3 == 0 ? 1.5f : 0.3f));
         eta[i] = kEta[i % (sizeof kEta / sizeof kEta[0])];
+        // Hit points at every scale and sign, near the origin (|p| < 1/32: the absolute nudge)
+        // and not, with non-finite coordinates too.
+        const float scale = std::ldexp(1.0f, static_cast<int>(i % 23) - 11);
+        p[i] = Vec3{u(rng) - 0.5f, u(rng) - 0.5f, u(rng) - 0.5f} * scale;
+        if (i % 31 == 9) p[i] = Vec3{kNaN, 0.0f, -kInf};
+        if (i % 31 == 10) p[i] = Vec3{-0.0f, 1.0f / 32.0f, -1.0f / 32.0f};
+        if (i % 31 == 11) p[i] = Vec3{3e38f, -3e38f, 1e-42f};
         switch (i % 29) {  // the edges of every formula
           case 1: d[i] = -sn[i]; break;                                    // normal incidence
           case 2: d[i] = normalize(cross(sn[i], g[i]) + sn[i] * 1e-8f); break;  // grazing
@@ -265,16 +272,16 @@ TEST(Lighting, BounceBlocksGiveTheScalarDirectionsBitForBit) {
           case 8: d[i] = sn[i]; break;                                     // leaving along the normal
           default: break;
         }
-        const float in[render::kBounceInputs] = {d[i].x,  d[i].y, d[i].z, sn[i].x, sn[i].y,
-                                                 sn[i].z, g[i].x, g[i].y, g[i].z,  eta[i]};
+        const float in[render::kBounceInputs] = {d[i].x,  d[i].y, d[i].z, sn[i].x, sn[i].y, sn[i].z, g[i].x,
+                                                 g[i].y,  g[i].z, eta[i], p[i].x, p[i].y,  p[i].z};
         for (int r = 0; r < render::kBounceInputs; ++r) cell(r, i) = in[r];
       }
       clone.bounce(cell.rows.data(), n);
       for (size_t i = 0; i < n; ++i) {
         float fr;
         bool ok;
-        Vec3 t, mirror;
-        render::bounce_reference(d[i], sn[i], g[i], eta[i], fr, ok, t, mirror);
+        Vec3 t, mirror, above, below;
+        render::bounce_reference(d[i], sn[i], g[i], eta[i], p[i], fr, ok, t, mirror, above, below);
         const auto at = [&](int r) { return cell(r, i); };
         int32_t ok_bits;
         std::memcpy(&ok_bits, &cell(render::kBounceOk, i), sizeof ok_bits);
@@ -291,6 +298,13 @@ TEST(Lighting, BounceBlocksGiveTheScalarDirectionsBitForBit) {
         ASSERT_TRUE(same_bits(at(render::kBounceMx), mirror.x)) << "hit " << i;
         ASSERT_TRUE(same_bits(at(render::kBounceMy), mirror.y)) << "hit " << i;
         ASSERT_TRUE(same_bits(at(render::kBounceMz), mirror.z)) << "hit " << i;
+        ASSERT_TRUE(same_bits(at(render::kBounceAx), above.x)) << "hit " << i;
+        ASSERT_TRUE(same_bits(at(render::kBounceAy), above.y)) << "hit " << i;
+        ASSERT_TRUE(same_bits(at(render::kBounceAz), above.z)) << "hit " << i;
+        ASSERT_TRUE(same_bits(at(render::kBounceBx), below.x)) << "hit " << i;
+        ASSERT_TRUE(same_bits(at(render::kBounceBy), below.y)) << "hit " << i;
+        ASSERT_TRUE(same_bits(at(render::kBounceBz), below.z)) << "hit " << i;
+        nudged += std::fabs(p[i].x) < 1.0f / 32.0f;
       }
     }
   }
@@ -299,6 +313,7 @@ TEST(Lighting, BounceBlocksGiveTheScalarDirectionsBitForBit) {
   EXPECT_GT(refracted, 100u);
   EXPECT_GT(total_reflection, 100u);
   EXPECT_GT(geometric_mirror, 10u);
+  EXPECT_GT(nudged, 100u);  // ray origins moved by the absolute offset near zero, and in ulps
 }
 
 TEST(Lighting, GradientSkyBlocksGiveTheScalarBlendBitForBit) {

@@ -1,6 +1,7 @@
 /// \file bounce.h
-/// The mirror and dielectric directions of the Whitted integrator's hits, a block of kBlock
-/// hits at a time (internal to src/render; tested in tests/lighting_test.cpp).
+/// The mirror and dielectric directions of the Whitted integrator's hits, and where their rays
+/// start, a block of kBlock hits at a time (internal to src/render; tested in
+/// tests/lighting_test.cpp).
 ///
 /// Per hit these are chains of dependent operations (a dot product, the Fresnel equations with
 /// a square root and two divisions, Snell's law with another square root, two normalisations),
@@ -18,22 +19,26 @@
 #include "render/fresnel.h"
 #include "render/lanes.h"
 #include "specula/math.h"
+#include "specula/ray.h"
 
 namespace specula::render {
 
 /// Rows of a block of recorded hits: inputs (incoming direction d, shading normal n and
-/// geometric normal g, both facing the incoming ray, and the relative index of refraction eta),
-/// then the outputs of bounce_block().
+/// geometric normal g, both facing the incoming ray, the relative index of refraction eta and
+/// the hit point p), then the outputs of bounce_block().
 enum BounceRow : int {
   kBounceDx, kBounceDy, kBounceDz,
   kBounceNx, kBounceNy, kBounceNz,
   kBounceGx, kBounceGy, kBounceGz,
   kBounceEta,
+  kBouncePx, kBouncePy, kBouncePz,
   kBounceInputs,                  ///< rows above: written by the integrator
   kBounceFr = kBounceInputs,      ///< Fresnel reflectance through n
   kBounceOk,                      ///< refraction through n kept (int32 all ones) or not (0)
   kBounceTx, kBounceTy, kBounceTz,  ///< the refracted direction (where kBounceOk)
   kBounceMx, kBounceMy, kBounceMz,  ///< the unit mirror direction
+  kBounceAx, kBounceAy, kBounceAz,  ///< offset_ray_origin(p, g): where the mirror ray starts
+  kBounceBx, kBounceBy, kBounceBz,  ///< offset_ray_origin(p, -g): where the refracted ray starts
   kBounceRows,
 };
 
@@ -41,14 +46,31 @@ enum BounceRow : int {
 /// against): \p fr the reflectance, \p ok whether the refraction through the shading normal is
 /// kept (it exists and leaves below the geometric surface) with direction \p t, \p mirror the
 /// mirror direction (about the shading normal, or the geometric one if that would dip below the
-/// geometric surface), normalised.
-inline void bounce_reference(const Vec3& d, const Vec3& n, const Vec3& g, float eta, float& fr, bool& ok, Vec3& t,
-                             Vec3& mirror) {
+/// geometric surface), normalised; \p above and \p below the origins of the rays that leave p on
+/// either side of the geometric surface.
+inline void bounce_reference(const Vec3& d, const Vec3& n, const Vec3& g, float eta, const Vec3& p, float& fr,
+                             bool& ok, Vec3& t, Vec3& mirror, Vec3& above, Vec3& below) {
   fr = detail::fresnel_dielectric(-dot(d, n), eta);
   ok = fr < 1.0f && detail::refract(d, n, eta, t) && dot(t, g) < 0.0f;
   Vec3 r = reflect(d, n);
   if (dot(r, g) <= 0.0f) r = reflect(d, g);
   mirror = normalize(r);
+  above = offset_ray_origin(p, g);
+  below = offset_ray_origin(p, -g);
+}
+
+/// offset_ray_origin() of one coordinate, lane by lane: \p p moved by trunc(256 n) ulps away
+/// from zero, or by n / 65536 where |p| < 1/32 (the same truncation, integer addition, with
+/// wrap-around, and ordered compares).
+SPECULA_LANES_INLINE lanes::Fv offset_lanes(lanes::Fv p, lanes::Fv n) {
+  using namespace lanes;
+  using Uv = uint32_t __attribute__((vector_size(4 * kBlock)));
+  const Iv of = __builtin_convertvector(splat(256.0f) * n, Iv);
+  const Iv neg = p < splat(0.0f);
+  const Iv step = (of ^ neg) - neg;  // p < 0 ? -of : of
+  const Fv moved = bits<Fv>(bits<Uv>(p) + bits<Uv>(step));
+  const Fv abs_p = bits<Fv>(bits<Iv>(p) & (Iv{} + 0x7FFFFFFF));
+  return select(abs_p < splat(1.0f / 32.0f), p + splat(1.0f / 65536.0f) * n, moved);
 }
 
 /// bounce_reference() for one block of kBlock hits, stored block by block (row r of hit i at
@@ -94,6 +116,10 @@ inline void bounce_block(float* block) {
   const Iv below = mx * gx + my * gy + mz * gz <= zero;
   mx = select(below, dx - gx * sg, mx), my = select(below, dy - gy * sg, my), mz = select(below, dz - gz * sg, mz);
   normalize_lanes(mx, my, mz);
+
+  const Fv px = in(kBouncePx), py = in(kBouncePy), pz = in(kBouncePz);
+  out(kBounceAx, offset_lanes(px, gx)), out(kBounceAy, offset_lanes(py, gy)), out(kBounceAz, offset_lanes(pz, gz));
+  out(kBounceBx, offset_lanes(px, -gx)), out(kBounceBy, offset_lanes(py, -gy)), out(kBounceBz, offset_lanes(pz, -gz));
 
   out(kBounceFr, fr);
   out(kBounceOk, ok);

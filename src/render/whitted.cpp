@@ -217,7 +217,6 @@ struct ShadeMaterial {
 /// wavefront (render::bounce_block(), rows in Scratch::bounce_rows, same index) and its rays made
 /// by bounce(), both after the shading loop (see render_tile).
 struct Bounce {
-  Vec3 p;       ///< hit point
   Vec3 weight;  ///< the segment's throughput after Beer-Lambert
   float refl, trans;  ///< the material's mirror and dielectric weights
   float eta;          ///< relative index of refraction (incident over transmitted side)
@@ -665,7 +664,6 @@ void shade_hit(const Context& ctx, Scratch& s, const Ray& ray, const PathState& 
   if (!(m.refl > 0.0f || m.trans > 0.0f)) return;
   const size_t k = s.n_bounces++;
   Bounce& b = s.bounces[k];
-  b.p = p;
   b.weight = weight;
   b.refl = m.refl;
   b.trans = m.trans;
@@ -689,7 +687,8 @@ void shade_hit(const Context& ctx, Scratch& s, const Ray& ray, const PathState& 
   }
   b.eta = eta;
   float* const cell = s.bounce_rows.data() + render::block_offset<render::kBounceRows>(0, k);
-  const float in[render::kBounceInputs] = {d.x, d.y, d.z, ns_f.x, ns_f.y, ns_f.z, ng_f.x, ng_f.y, ng_f.z, eta};
+  const float in[render::kBounceInputs] = {d.x, d.y, d.z, ns_f.x, ns_f.y, ns_f.z, ng_f.x, ng_f.y, ng_f.z, eta,
+                                           p.x, p.y, p.z};
   for (int r = 0; r < render::kBounceInputs; ++r) cell[static_cast<size_t>(r) * render::kBlock] = in[r];
 }
 
@@ -703,7 +702,6 @@ void bounce(const Context& ctx, Scratch& s, const Vec3& d, const PathState& seg,
   const float* const cell = s.bounce_rows.data() + render::block_offset<render::kBounceRows>(0, k);
   const auto at = [&](int r) { return cell[static_cast<size_t>(r) * render::kBlock]; };
   const Vec3 ng_f{at(render::kBounceGx), at(render::kBounceGy), at(render::kBounceGz)};
-  const Vec3& p = b.p;
   const Vec3& weight = b.weight;
   float refl_w = b.refl;
   float refr_w = 0.0f;
@@ -728,7 +726,7 @@ void bounce(const Context& ctx, Scratch& s, const Vec3& d, const PathState& seg,
     const Vec3 w = weight * refl_w;
     if (max_component(w) >= kMinWeight) {
       const size_t r = s.n_next++;  // render_tile sized next_* for two rays per hit
-      s.next_rays[r] = Ray{offset_ray_origin(p, ng_f), 0.0f,
+      s.next_rays[r] = Ray{Vec3{at(render::kBounceAx), at(render::kBounceAy), at(render::kBounceAz)}, 0.0f,
                            Vec3{at(render::kBounceMx), at(render::kBounceMy), at(render::kBounceMz)}, kInf};
       s.next_paths[r] = PathState{w, seg.pixel, seg.global, static_cast<uint8_t>(seg.reflect_depth + 1),
                                   seg.refract_depth, next_history(seg.history, 0), seg.media, b.leave};
@@ -742,7 +740,7 @@ void bounce(const Context& ctx, Scratch& s, const Vec3& d, const PathState& seg,
       std::vector<Ray>& rays = ctx.history_order ? s.refr_rays : s.next_rays;
       std::vector<PathState>& paths = ctx.history_order ? s.refr_paths : s.next_paths;
       const size_t r = ctx.history_order ? s.n_refr++ : s.n_next++;
-      rays[r] = Ray{offset_ray_origin(p, -ng_f), 0.0f, refr_dir, kInf};
+      rays[r] = Ray{Vec3{at(render::kBounceBx), at(render::kBounceBy), at(render::kBounceBz)}, 0.0f, refr_dir, kInf};
       paths[r] = PathState{w, seg.pixel, seg.global, seg.reflect_depth,
                            static_cast<uint8_t>(seg.refract_depth + 1), next_history(seg.history, 1), b.media,
                            b.leave};
