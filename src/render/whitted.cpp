@@ -392,13 +392,20 @@ struct Context {
   // loads, a subtraction and, for the triangles, a division per check, redone after every call
   // the compiler cannot see into).
   size_t n_triangles = 0, n_materials = 0, n_material_ids = 0, n_lights = 0;
+  // Whether Scratch::lit_global (read by sphere lights) and lit_history (the shadow rays'
+  // coherence keys, when TraceOrder groups them) are read at all: else not written per lit hit.
+  bool keep_lit_global = false, keep_lit_history = false;
 
-  /// Sets the numbers above (after `lights` is filled).
+  /// Sets the numbers and flags above (after `lights` and the options are set).
   void count() {
     n_triangles = scene.triangle_count();
     n_materials = scene.materials.size();
     n_material_ids = scene.material_ids.size();
     n_lights = lights.size();
+    keep_lit_history = shadows && group_rays && !history_order;
+    keep_lit_global = false;
+    for (const LightSetup& light : lights)
+      keep_lit_global = keep_lit_global || (light.type != LightType::Directional && !light.point);
   }
 
   /// Whether a hit record refers to something this context can shade.
@@ -652,8 +659,8 @@ void shade_hit(const Context& ctx, Scratch& s, const Ray& ray, const PathState& 
     q.phong_int = m.phong_int;
     q.has_spec = m.has_spec;
     lit = s.lit.add(q);
-    s.lit_global[lit] = seg.global;
-    s.lit_history[lit] = seg.history;
+    if (ctx.keep_lit_global) s.lit_global[lit] = seg.global;
+    if (ctx.keep_lit_history) s.lit_history[lit] = seg.history;
   }
   s.additions[s.n_additions++] = Scratch::Addition{weight * m.base, seg.pixel, lit};
 
