@@ -395,6 +395,7 @@ struct Context {
   // Whether Scratch::lit_global (read by sphere lights) and lit_history (the shadow rays'
   // coherence keys, when TraceOrder groups them) are read at all: else not written per lit hit.
   bool keep_lit_global = false, keep_lit_history = false;
+  bool block_lights_only = true;  ///< every light directional or a point: all evaluated in blocks
 
   /// Sets the numbers and flags above (after `lights` and the options are set).
   void count() {
@@ -406,6 +407,7 @@ struct Context {
     keep_lit_global = false;
     for (const LightSetup& light : lights)
       keep_lit_global = keep_lit_global || (light.type != LightType::Directional && !light.point);
+    block_lights_only = !keep_lit_global;
   }
 
   /// Whether a hit record refers to something this context can shade.
@@ -477,6 +479,15 @@ template <class Emit>
 [[gnu::always_inline]] inline void shade_lights(const Context& ctx, Scratch& s, uint32_t pixel, uint32_t j) {
   const render::LitPoints& lit = s.lit;
   const bool one_by_one = lit.one_by_one(j);
+  if (!one_by_one && ctx.block_lights_only && !ctx.shadows) {
+    // The common case, without the per-light kind checks: every light's contribution was found
+    // by the blocks and goes straight to the pixel.
+    for (size_t li = 0; li < ctx.n_lights; ++li) {
+      Vec3 c;
+      if (lit.result(li, j, c)) s.accum[pixel] += c;
+    }
+    return;
+  }
   // The whole point, gathered from the arrays only where sample_light() needs it. Held in a
   // union that leaves it unconstructed until then: a declared LitPoint (or std::optional of one)
   // is zeroed first, which the x86-64-v3 clone of render_tile did for every lit hit with a
