@@ -471,6 +471,22 @@ template <class Emit>
   }
 }
 
+/// Queues the shadow ray \p shadow of light \p li for lit hit \p j at tile pixel \p pixel, with the
+/// radiance \p c it brings when unoccluded. Written by index: render_tile sized the batch for
+/// shadow_per_hit rays per hit. In history order each light's rays go to a region of their own,
+/// in shading order, so the batch is one run per (light, history) without a TraceOrder pass;
+/// else the rays sit in request order and, grouped, carry their coherence key (the path's
+/// history and the light) for TraceOrder.
+[[gnu::always_inline]] inline void add_shadow_ray(const Context& ctx, Scratch& s, uint32_t pixel, uint32_t j, size_t li,
+                                                  const Vec3& c, const Ray& shadow) {
+  const size_t k = s.n_shadow++;
+  const size_t slot = ctx.history_order ? s.light_cursor[li]++ : k;
+  s.shadow_rays[slot] = shadow;
+  s.shadow_req[k] = ShadowRequest{c, pixel, static_cast<uint32_t>(slot)};
+  if (ctx.keep_lit_history)  // only read where TraceOrder groups the batch
+    s.shadow_key[k] = (uint32_t{s.lit_history[j]} << 8) | static_cast<uint32_t>(std::min<size_t>(li, 255));
+}
+
 /// Adds the direct lighting of every light at lit hit \p j of the wavefront (Scratch::lit,
 /// whose directional and point lights were evaluated for all hits at once): straight to the
 /// pixel without shadow rays, else as shadow-ray requests carrying the radiance they would
@@ -479,12 +495,29 @@ template <class Emit>
 [[gnu::always_inline]] inline void shade_lights(const Context& ctx, Scratch& s, uint32_t pixel, uint32_t j) {
   const render::LitPoints& lit = s.lit;
   const bool one_by_one = lit.one_by_one(j);
-  if (!one_by_one && ctx.block_lights_only && !ctx.shadows) {
+  if (!one_by_one && ctx.block_lights_only) {
     // The common case, without the per-light kind checks: every light's contribution was found
-    // by the blocks and goes straight to the pixel.
+    // by the blocks and goes straight to the pixel, or into a shadow ray from one origin.
+    if (!ctx.shadows) {
+      for (size_t li = 0; li < ctx.n_lights; ++li) {
+        Vec3 c;
+        if (lit.result(li, j, c)) s.accum[pixel] += c;
+      }
+      return;
+    }
+    Vec3 org;
+    bool have_org = false;
     for (size_t li = 0; li < ctx.n_lights; ++li) {
       Vec3 c;
-      if (lit.result(li, j, c)) s.accum[pixel] += c;
+      if (!lit.result(li, j, c)) continue;
+      if (!have_org) {
+        org = offset_ray_origin(lit.position(j), lit.normal(j));
+        have_org = true;
+      }
+      const LightSetup& light = ctx.lights[li];
+      add_shadow_ray(ctx, s, pixel, j, li, c,
+                     light.type == LightType::Directional ? Ray{org, 0.0f, light.l, kInf}
+                                                          : Ray{org, 0.0f, light.position - org, 1.0f});
     }
     return;
   }
@@ -514,18 +547,8 @@ template <class Emit>
     }
     return org;
   };
-  // Written by index: render_tile sized the batch for shadow_per_hit rays per hit. In history
-  // order each light's rays go to a region of their own, in shading order, so the batch is one
-  // run per (light, history) without a TraceOrder pass; else the rays sit in request order and,
-  // grouped, carry their coherence key (the path's history and the light) for TraceOrder.
   const auto add = [&](const Vec3& c, const Ray& shadow, const LightSetup& light) {
-    const size_t k = s.n_shadow++;
-    const auto index = static_cast<size_t>(&light - ctx.lights.data());
-    const size_t slot = ctx.history_order ? s.light_cursor[index]++ : k;
-    s.shadow_rays[slot] = shadow;
-    s.shadow_req[k] = ShadowRequest{c, pixel, static_cast<uint32_t>(slot)};
-    if (ctx.group_rays && !ctx.history_order)  // only read where TraceOrder groups the batch
-      s.shadow_key[k] = (uint32_t{s.lit_history[j]} << 8) | static_cast<uint32_t>(std::min<size_t>(index, 255));
+    add_shadow_ray(ctx, s, pixel, j, static_cast<size_t>(&light - ctx.lights.data()), c, shadow);
   };
 
   for (size_t li = 0; li < ctx.n_lights; ++li) {
