@@ -356,6 +356,10 @@ struct LightSetup {
   float radius = 0.0f;
   float inv_n = 1.0f;
   std::vector<float> rr, phase;  ///< sphere: per sample k, disc radius and k * golden angle
+
+  /// Evaluated for a wavefront's lit hits at once (LitPoints::evaluate_light): directional and
+  /// point lights. Sphere lights are sampled hit by hit (sphere_light()).
+  bool in_blocks() const { return type == LightType::Directional || point; }
 };
 
 /// Everything constant during one render.
@@ -392,10 +396,12 @@ struct Context {
   // loads, a subtraction and, for the triangles, a division per check, redone after every call
   // the compiler cannot see into).
   size_t n_triangles = 0, n_materials = 0, n_material_ids = 0, n_lights = 0;
-  // Whether Scratch::lit_global (read by sphere lights) and lit_history (the shadow rays'
-  // coherence keys, when TraceOrder groups them) are read at all: else not written per lit hit.
-  bool keep_lit_global = false, keep_lit_history = false;
-  bool block_lights_only = true;  ///< every light directional or a point: all evaluated in blocks
+  /// Every light is evaluated in blocks (LightSetup::in_blocks()). Else some sphere light reads
+  /// Scratch::lit_global, which is only written then.
+  bool block_lights_only = true;
+  /// Scratch::lit_history is read (the shadow rays' coherence keys, when TraceOrder groups them):
+  /// else not written per lit hit.
+  bool keep_lit_history = false;
 
   /// Sets the numbers and flags above (after `lights` and the options are set).
   void count() {
@@ -404,10 +410,7 @@ struct Context {
     n_material_ids = scene.material_ids.size();
     n_lights = lights.size();
     keep_lit_history = shadows && group_rays && !history_order;
-    keep_lit_global = false;
-    for (const LightSetup& light : lights)
-      keep_lit_global = keep_lit_global || (light.type != LightType::Directional && !light.point);
-    block_lights_only = !keep_lit_global;
+    block_lights_only = std::all_of(lights.begin(), lights.end(), [](const LightSetup& l) { return l.in_blocks(); });
   }
 
   /// Whether a hit record refers to something this context can shade.
@@ -588,7 +591,7 @@ template <class Emit>
   if (s.lit.size() > 0)
     for (size_t li = 0; li < ctx.n_lights; ++li) {
       const LightSetup& light = ctx.lights[li];
-      if (light.type == LightType::Directional || light.point)
+      if (light.in_blocks())
         s.lit.evaluate_light(li, light.type == LightType::Directional, light.l, light.position, light.power);
     }
   for (size_t i = 0; i < s.n_additions; ++i) {
@@ -695,7 +698,7 @@ void shade_hit(const Context& ctx, Scratch& s, const Ray& ray, const PathState& 
     q.phong_int = m.phong_int;
     q.has_spec = m.has_spec;
     lit = s.lit.add(q);
-    if (ctx.keep_lit_global) s.lit_global[lit] = seg.global;
+    if (!ctx.block_lights_only) s.lit_global[lit] = seg.global;
     if (ctx.keep_lit_history) s.lit_history[lit] = seg.history;
   }
   s.additions[s.n_additions++] = Scratch::Addition{weight * m.base, seg.pixel, lit};
