@@ -542,6 +542,10 @@ TEST_F(Cli, BenchTraceJsonHasEveryRayKindAndTheKernel) {
   EXPECT_NE(t.out.find("nodes/ray"), std::string::npos) << t.out;
   EXPECT_NE(t.out.find("\ncpu: "), std::string::npos) << t.out;  // which processor the figures are from
   EXPECT_NE(run_cli("bench trace --scene cornell --bvh-kernel avx9", dir_).exit_code, 0);
+  // --embree-robust asks for an Embree comparison: with --no-embree it is a usage error.
+  const RunResult robust_none = run_cli("bench trace --scene cornell --no-embree --embree-robust", dir_);
+  EXPECT_EQ(robust_none.exit_code, 2);
+  EXPECT_NE(robust_none.err.find("excludes"), std::string::npos) << robust_none.err;
   // --mesh replaces --scene: both at once is a usage error, not one of them silently dropped.
   const RunResult both = run_cli("bench trace --scene cornell --mesh x.obj", dir_);
   EXPECT_EQ(both.exit_code, 2);
