@@ -6,8 +6,13 @@
 #include <embree3/rtcore.h>
 #include <tbb/task_arena.h>
 
+#include <algorithm>
 #include <cstring>
+#include <new>
 #include <string>
+#include <vector>
+
+#include "accel/triangles.h"
 
 #include "specula/error.h"
 #include "specula/timer.h"
@@ -177,6 +182,126 @@ void EmbreeTracer::transmittance(std::span<const Ray> rays, std::span<Vec3> out,
     out[i] = ray.tfar < 0.0f ? Vec3{} : Vec3{1.0f, 1.0f, 1.0f};
   }
   if (stats) stats->rays += rays.size();
+}
+
+namespace {
+/// One node of the tree rtcBuildBVH hands out through the callbacks below (in its own
+/// thread-local memory, freed with the RTCBVH): the children's boxes live in the parent.
+struct SahNode {
+  bool leaf = false;
+  unsigned count = 0;  ///< children (inner node) or triangles (leaf)
+  SahNode* child[2] = {nullptr, nullptr};
+  RTCBounds box[2] = {};
+};
+
+void* sah_create_node(RTCThreadLocalAllocator alloc, unsigned int child_count, void*) {
+  void* p = rtcThreadLocalAlloc(alloc, sizeof(SahNode), alignof(SahNode));
+  auto* n = new (p) SahNode;
+  n->count = child_count;
+  return n;
+}
+void sah_set_children(void* node, void** children, unsigned int count, void*) {
+  auto* n = static_cast<SahNode*>(node);
+  for (unsigned i = 0; i < count && i < 2; ++i) n->child[i] = static_cast<SahNode*>(children[i]);
+}
+void sah_set_bounds(void* node, const RTCBounds** bounds, unsigned int count, void*) {
+  auto* n = static_cast<SahNode*>(node);
+  for (unsigned i = 0; i < count && i < 2; ++i) n->box[i] = *bounds[i];
+}
+void* sah_create_leaf(RTCThreadLocalAllocator alloc, const RTCBuildPrimitive*, size_t count, void*) {
+  void* p = rtcThreadLocalAlloc(alloc, sizeof(SahNode), alignof(SahNode));
+  auto* n = new (p) SahNode;
+  n->leaf = true;
+  n->count = static_cast<unsigned>(count);
+  return n;
+}
+
+/// Half the surface area of \p b as binary_sah_cost() takes it: float extents, products and
+/// sum in double (0 for an empty box).
+double half_area(const RTCBounds& b) {
+  const float ex = b.upper_x - b.lower_x, ey = b.upper_y - b.lower_y, ez = b.upper_z - b.lower_z;
+  return (ex >= 0 && ey >= 0 && ez >= 0) ? double{ex} * ey + double{ey} * ez + double{ez} * ex : 0.0;
+}
+}  // namespace
+
+EmbreeSahTree embree_binary_sah(const TriangleInput& input, int max_leaf, float traversal_cost) {
+  EmbreeSahTree out;
+  std::vector<RTCBuildPrimitive> prims;
+  const size_t nt = input.indices.size() / 3;
+  prims.reserve(nt);
+  RTCBounds root{kInf, kInf, kInf, 0.0f, -kInf, -kInf, -kInf, 0.0f};
+  for (size_t t = 0; t < nt; ++t) {
+    const Vec3& a = input.positions[input.indices[3 * t]];
+    const Vec3& b = input.positions[input.indices[3 * t + 1]];
+    const Vec3& c = input.positions[input.indices[3 * t + 2]];
+    if (accel::is_degenerate(a, b, c)) continue;
+    const Vec3 lo = min(min(a, b), c), hi = max(max(a, b), c);
+    RTCBuildPrimitive p;
+    p.lower_x = lo.x, p.lower_y = lo.y, p.lower_z = lo.z, p.geomID = 0;
+    p.upper_x = hi.x, p.upper_y = hi.y, p.upper_z = hi.z, p.primID = static_cast<unsigned>(t);
+    prims.push_back(p);
+    root.lower_x = std::min(root.lower_x, lo.x), root.lower_y = std::min(root.lower_y, lo.y);
+    root.lower_z = std::min(root.lower_z, lo.z), root.upper_x = std::max(root.upper_x, hi.x);
+    root.upper_y = std::max(root.upper_y, hi.y), root.upper_z = std::max(root.upper_z, hi.z);
+  }
+  if (prims.empty()) return out;
+  RTCDevice device = rtcNewDevice("threads=1");
+  if (!device) throw Error("embree: rtcNewDevice failed");
+  RTCBVH bvh = rtcNewBVH(device);
+  RTCBuildArguments args = rtcDefaultBuildArguments();
+  args.buildQuality = RTC_BUILD_QUALITY_MEDIUM;
+  args.maxBranchingFactor = 2;
+  args.maxDepth = 64;
+  args.sahBlockSize = 4;  // leaves cost per block of four triangles, as in our builder
+  args.minLeafSize = 1;
+  out.max_leaf = std::clamp(max_leaf, 1, static_cast<int>(RTC_BUILD_MAX_PRIMITIVES_PER_LEAF));
+  args.maxLeafSize = static_cast<unsigned>(out.max_leaf);
+  args.traversalCost = traversal_cost;
+  args.intersectionCost = 1.0f;
+  args.bvh = bvh;
+  args.primitives = prims.data();
+  args.primitiveCount = prims.size();
+  args.primitiveArrayCapacity = prims.size();
+  args.createNode = sah_create_node;
+  args.setNodeChildren = sah_set_children;
+  args.setNodeBounds = sah_set_bounds;
+  args.createLeaf = sah_create_leaf;
+  const Timer timer;
+  void* top = nullptr;
+  tbb::task_arena(1).execute([&] { top = rtcBuildBVH(&args); });
+  out.build_ms = timer.ms();
+  const RTCError err = rtcGetDeviceError(device);
+  if (err != RTC_ERROR_NONE || !top) {
+    rtcReleaseBVH(bvh);
+    rtcReleaseDevice(device);
+    throw Error("embree: rtcBuildBVH failed (error " + std::to_string(static_cast<int>(err)) + ")");
+  }
+  // Every node's box is in its parent; the root's is the triangles' bounds.
+  struct Item {
+    const SahNode* node;
+    RTCBounds box;
+    uint32_t depth;
+  };
+  std::vector<Item> stack{{static_cast<const SahNode*>(top), root, 0}};
+  double sum = 0.0;
+  while (!stack.empty()) {
+    const Item it = stack.back();
+    stack.pop_back();
+    ++out.nodes;
+    out.depth = std::max(out.depth, it.depth);
+    if (it.node->leaf) {
+      ++out.leaves;
+      sum += half_area(it.box) * it.node->count;
+      continue;
+    }
+    sum += half_area(it.box) * traversal_cost;
+    for (unsigned i = 0; i < it.node->count && i < 2; ++i) stack.push_back({it.node->child[i], it.node->box[i], it.depth + 1});
+  }
+  const double r = half_area(root);
+  out.sah_cost = r > 0.0 ? sum / r : static_cast<double>(prims.size());
+  rtcReleaseBVH(bvh);
+  rtcReleaseDevice(device);
+  return out;
 }
 
 }  // namespace specula::cli

@@ -4,6 +4,8 @@
 
 #ifdef SPECULA_HAVE_EMBREE
 
+#include <cstddef>
+#include <cstdint>
 #include <memory>
 #include <span>
 #include <string>
@@ -44,6 +46,25 @@ class EmbreeTracer final : public Tracer {
   std::unique_ptr<Impl> impl_;
   bool packets_ = false;
 };
+
+/// Embree's own binned SAH builder on the triangles our BVH holds, scored with our cost.
+struct EmbreeSahTree {
+  double sah_cost = 0.0;  ///< BuildInfo::sah_cost's formula on Embree's tree
+  size_t nodes = 0;       ///< inner nodes and leaves, as BuildInfo::nodes counts them
+  size_t leaves = 0;
+  uint32_t depth = 0;     ///< levels below the root
+  double build_ms = 0.0;  ///< rtcBuildBVH, one thread
+  int max_leaf = 0;       ///< the leaf limit Embree got (its builder takes at most 32)
+};
+
+/// Builds a binary tree over the non-degenerate triangles of \p input (the ones every specula
+/// structure holds) with rtcBuildBVH at RTC_BUILD_QUALITY_MEDIUM, the binned SAH builder behind
+/// Embree's medium scene build, given our builder's objective: two children per node, leaves of
+/// at most \p max_leaf triangles decided by the SAH, charged per block of four triangles (as our
+/// builder and Embree's Triangle4 scene build charge them), node cost \p traversal_cost. Returns the tree's SAH cost as BuildInfo::sah_cost computes it (node half areas times
+/// \p traversal_cost, leaves' times their triangles, over the root's), so the two builders'
+/// trees compare directly. Embree's scene BVH itself is not exposed by its API.
+EmbreeSahTree embree_binary_sah(const TriangleInput& input, int max_leaf, float traversal_cost);
 
 }  // namespace specula::cli
 
