@@ -243,6 +243,7 @@ TEST(BvhPackets, FrustumCulledLeafTrianglesMatchSingleRays) {
   const Mesh soup = test::make_soup(3000, 45);
   BvhOptions big_leaves;
   big_leaves.traversal_cost = 8.0f;
+  big_leaves.max_leaf_size = 16;
   PacketCheck check;
   check.brute_every = 3;
   for (const Mesh* m : {&grid, &far_grid, &soup}) {
