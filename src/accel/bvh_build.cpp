@@ -20,7 +20,9 @@
 //
 // Subtrees above a size threshold are built as TBB tasks; node pairs are allocated with an
 // atomic counter and renumbered depth-first afterwards, so the result (nodes, triangle order)
-// is identical for any thread count.
+// is identical for any thread count. The top nodes, which no other task overlaps, bin their
+// primitives on all threads (AVX2 path, nodes of at least kParallelBinMin primitives) in fixed
+// chunks whose bins are merged exactly.
 #include <emmintrin.h>  // SSE2: part of the x86-64 baseline, no -march needed
 #include <immintrin.h>  // AVX2 paths: compiled per function (target attribute), chosen at run time
 
@@ -37,6 +39,7 @@
 
 #include <tbb/blocked_range.h>
 #include <tbb/info.h>
+#include <tbb/parallel_for.h>
 #include <tbb/parallel_reduce.h>
 #include <tbb/task_arena.h>
 #include <tbb/task_group.h>
@@ -142,6 +145,10 @@ constexpr uint32_t kBlock = 4;
 inline float blocks(uint32_t n) { return static_cast<float>((n + kBlock - 1) / kBlock); }
 /// Subtrees with more primitives than this are spawned as TBB tasks.
 constexpr uint32_t kTaskThreshold = 4096;
+/// Nodes with at least this many primitives bin them on all threads (AVX2 split search), in
+/// chunks of kBinChunk.
+constexpr uint32_t kParallelBinMin = 1u << 15;
+constexpr uint32_t kBinChunk = 1u << 13;
 /// Beyond this depth the builder stops using SAH and halves index ranges, which bounds the
 /// depth (and so the traversal stack) at kMedianDepth + 32 whatever the input.
 constexpr uint32_t kMedianDepth = 64;
@@ -248,6 +255,7 @@ class BvhBuilder {
   /// Builds the whole tree over refs[0, count); node 0 is the root.
   void build_root(uint32_t count, const Box4& bounds, const Box4& cbounds, bool parallel) {
     next_node_ = 2;  // node 1 is padding: keeps sibling pairs on one cache line
+    parallel_ = parallel;
     if (parallel) {
       tbb::task_group tg;
       build(0, 0, count, bounds, cbounds, 0, &tg);
@@ -369,27 +377,24 @@ class BvhBuilder {
   // AVX2 variants of find_split and partition (same arithmetic, so the same tree). A bin is one
   // 256-bit register (lo.xyzw, -hi.xyzw): a single min grows both corners (-max(a, b) is
   // exactly min(-a, -b)), and a primitive reference is a single 32-byte load.
-  __attribute__((target("avx2"), noinline)) Split find_split_avx2(uint32_t first, uint32_t count,
-                                                                   const Box4& cbounds) const {
-    const BinParams bp(bins_, count, cbounds);
+  /// Bins \p count references from \p refs into rec[0, 3 * nb) (AVX2 layout; rec has room for
+  /// 2 * 3 * nb records, the second half scratch).
+  __attribute__((target("avx2"))) static void bin_refs_avx2(const PrimRef* refs, uint32_t count, const BinParams& bp,
+                                                             BinRec* rec) {
     const int nb = bp.nb;
-    const float *cmin = bp.cmin, *cext = bp.cext, *scale = bp.scale;
     const __m128 vmin = bp.vmin, vscale = bp.vscale, vmaxbin = bp.vmaxbin;
     const __m128i voff = bp.voff;
     const __m256 neg_hi = _mm256_setr_ps(0.0f, 0.0f, 0.0f, 0.0f, -0.0f, -0.0f, -0.0f, -0.0f);
     const __m256 empty = _mm256_set1_ps(kInf);
-
     // A bin is one 64-byte record (box, count), addressed by byte offset: the bin index
     // vector is scaled to bytes before the three lanes are extracted, so each update is a
     // min from memory, a store and an increment at the same address (no index arithmetic).
     const int sets = count >= 64 ? 2 : 1;
     const int stride = 3 * nb;
-    BinRec rec[2 * 3 * kMaxBins];
 #pragma GCC unroll 2
     for (int i = 0; i < sets * stride; ++i) rec[i].box = empty, rec[i].count = 0;
     const __m128i voff64 = _mm_slli_epi32(voff, 6);
     char* const base0 = reinterpret_cast<char*>(rec);
-    const PrimRef* refs = refs_ + first;
     uint32_t i = 0;
     if (sets == 2) {
       char* const base1 = base0 + static_cast<size_t>(stride) * sizeof(BinRec);
@@ -415,6 +420,44 @@ class BvhBuilder {
       bin_update(base0, static_cast<uint32_t>(_mm_cvtsi128_si32(o)), nv);
       bin_update(base0, static_cast<uint32_t>(_mm_extract_epi32(o, 1)), nv);
       bin_update(base0, static_cast<uint32_t>(_mm_extract_epi32(o, 2)), nv);
+    }
+  }
+
+  __attribute__((target("avx2"), noinline)) Split find_split_avx2(uint32_t first, uint32_t count,
+                                                                   const Box4& cbounds) const {
+    const BinParams bp(bins_, count, cbounds);
+    const int nb = bp.nb;
+    const float *cmin = bp.cmin, *cext = bp.cext;
+    const float* scale = bp.scale;
+    const __m256 neg_hi = _mm256_setr_ps(0.0f, 0.0f, 0.0f, 0.0f, -0.0f, -0.0f, -0.0f, -0.0f);
+    const __m256 empty = _mm256_set1_ps(kInf);
+    const int stride = 3 * nb;
+    BinRec rec[2 * 3 * kMaxBins];
+    const PrimRef* refs = refs_ + first;
+    if (parallel_ && count >= kParallelBinMin) {
+      // Large nodes (the top of the tree, which no other task overlaps) bin in fixed chunks on
+      // every thread. A bin's box is a min over its references and its count a sum, both
+      // exact in any order, so the merged bins (and the tree) are the serial pass's.
+      const uint32_t chunks = (count + kBinChunk - 1) / kBinChunk;
+      std::vector<BinRec> part(size_t{chunks} * 2 * static_cast<size_t>(stride));
+      tbb::parallel_for(tbb::blocked_range<uint32_t>(0, chunks, 1), [&](const tbb::blocked_range<uint32_t>& r) {
+        for (uint32_t c = r.begin(); c != r.end(); ++c)
+          bin_refs_avx2(refs + size_t{c} * kBinChunk, std::min(kBinChunk, count - c * kBinChunk), bp,
+                        part.data() + size_t{c} * 2 * static_cast<size_t>(stride));
+      });
+      for (int k = 0; k < stride; ++k) {
+        __m256 box = empty;
+        uint32_t n = 0;
+        for (uint32_t c = 0; c < chunks; ++c) {
+          const BinRec& b = part[size_t{c} * 2 * static_cast<size_t>(stride) + static_cast<size_t>(k)];
+          box = _mm256_min_ps(box, b.box);
+          n += b.count;
+        }
+        rec[k].box = box;
+        rec[k].count = n;
+      }
+    } else {
+      bin_refs_avx2(refs, count, bp, rec);
     }
 
     // Sweeps of the three axes at once, lane a = axis a. Half areas from (lo, -hi): lo + (-hi)
@@ -674,6 +717,7 @@ class BvhBuilder {
 
   PrimRef* refs_;
   bool avx2_ = __builtin_cpu_supports("avx2");
+  bool parallel_ = false;  ///< tasks may run: large nodes bin on all threads
   BvhNode* nodes_;
   uint32_t* prim_ids_;  ///< scene index per BVH position, written by make_leaf
   int bins_;
