@@ -17,6 +17,7 @@
 #include <memory>
 #include <new>
 #include <span>
+#include <utility>
 #include <vector>
 
 #include "specula/accel.h"
@@ -87,6 +88,15 @@ struct AlignedAllocator {
     using other = AlignedAllocator<U, Align>;
   };
   T* allocate(size_t n) { return static_cast<T*>(::operator new(n * sizeof(T), std::align_val_t{Align})); }
+  /// Default-initialises (resize() and emplace_back() without arguments leave trivial elements
+  /// unwritten: the builder writes every one of them afterwards, possibly from several threads).
+  template <class U, class... Args>
+  void construct(U* p, Args&&... args) {
+    if constexpr (sizeof...(Args) == 0)
+      ::new (static_cast<void*>(p)) U;
+    else
+      ::new (static_cast<void*>(p)) U(std::forward<Args>(args)...);
+  }
   void deallocate(T* p, size_t) noexcept { ::operator delete(p, std::align_val_t{Align}); }
   template <class U>
   bool operator==(const AlignedAllocator<U, Align>&) const noexcept { return true; }

@@ -149,6 +149,8 @@ constexpr uint32_t kTaskThreshold = 4096;
 /// chunks of kBinChunk.
 constexpr uint32_t kParallelBinMin = 1u << 15;
 constexpr uint32_t kBinChunk = 1u << 13;
+/// Triangle blocks filled per task when the build has threads.
+constexpr uint32_t kFillChunk = 1u << 12;
 /// Beyond this depth the builder stops using SAH and halves index ranges, which bounds the
 /// depth (and so the traversal stack) at kMedianDepth + 32 whatever the input.
 constexpr uint32_t kMedianDepth = 64;
@@ -1042,6 +1044,8 @@ Bvh Bvh::build(const TriangleInput& input, const BvhOptions& options, BuildInfo*
       auto& tri4 = bvh.tri4_;
       tri4.reserve(block_count);
       prepare_for_writes(tri4.data(), block_count * sizeof(BvhTriangle4));
+      tri4.resize(block_count);  // default-initialised (AlignedAllocator): every block is written below
+      BvhTriangle4* const out_blocks = tri4.data();
       const uint32_t* const idx = input.indices.data();
       const Vec3* const pos = input.positions.data();
       const size_t vcount = input.positions.size();
@@ -1049,13 +1053,15 @@ Bvh Bvh::build(const TriangleInput& input, const BvhOptions& options, BuildInfo*
       // Prefetch distances in blocks: the index triples well ahead, the vertices they name a
       // little ahead (as the BVH-order copy of the triangles did before).
       constexpr uint32_t kAheadIdx = 6, kAheadPos = 2;
-      for (uint32_t b = 0; b < block_count; ++b) {
-        if (b + kAheadIdx < block_count)
+      // Blocks [begin, end); each block depends only on its lanes, so ranges run on any thread.
+      const auto fill_range = [&](uint32_t begin, uint32_t block_end) {
+      for (uint32_t b = begin; b < block_end; ++b) {
+        if (b + kAheadIdx < block_end)
           for (uint32_t lane = 0; lane < kBlock; ++lane) {
             const uint32_t id = lanes[size_t{kBlock} * (b + kAheadIdx) + lane];
             if (id != kNoHit) __builtin_prefetch(idx + 3 * size_t{id});
           }
-        if (b + kAheadPos < block_count)
+        if (b + kAheadPos < block_end)
           for (uint32_t lane = 0; lane < kBlock; ++lane) {
             const uint32_t id = lanes[size_t{kBlock} * (b + kAheadPos) + lane];
             if (id == kNoHit) continue;
@@ -1081,7 +1087,16 @@ Bvh Bvh::build(const TriangleInput& input, const BvhOptions& options, BuildInfo*
           _MM_TRANSPOSE4_PS(p[k][0], p[k][1], p[k][2], p[k][3]);
           for (int a = 0; a < 3; ++a) _mm_store_ps(out + 4 * (3 * k + a), p[k][a]);
         }
-        tri4.push_back(blk);
+        out_blocks[b] = blk;
+      }
+      };
+      if (parallel && block_count >= 2 * kFillChunk) {
+        arena.execute([&] {
+          tbb::parallel_for(tbb::blocked_range<uint32_t>(0, block_count, kFillChunk),
+                            [&](const tbb::blocked_range<uint32_t>& r) { fill_range(r.begin(), r.end()); });
+        });
+      } else {
+        fill_range(0, block_count);
       }
     };
     // The binary subtree of every node: its first triangle, triangle count and leaf count
