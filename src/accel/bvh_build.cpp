@@ -29,6 +29,7 @@
 #include <algorithm>
 #include <atomic>
 #include <bit>
+#include <functional>
 #include <string>
 #include <type_traits>
 #include <cmath>
@@ -151,6 +152,8 @@ constexpr uint32_t kParallelBinMin = 1u << 15;
 constexpr uint32_t kBinChunk = 1u << 13;
 /// Triangle blocks filled per task when the build has threads.
 constexpr uint32_t kFillChunk = 1u << 12;
+/// Binary trees of at least this many nodes run the collapse's programme on all threads.
+constexpr size_t kParallelDpMin = size_t{1} << 13;
 /// Beyond this depth the builder stops using SAH and halves index ranges, which bounds the
 /// depth (and so the traversal stack) at kMedianDepth + 32 whatever the input.
 constexpr uint32_t kMedianDepth = 64;
@@ -1163,8 +1166,8 @@ Bvh Bvh::build(const TriangleInput& input, const BvhOptions& options, BuildInfo*
         }
         return arg;
       };
-      for (size_t j = nb; j-- > 0;) {
-        if (j == 1) continue;
+      // One node of the programme, from its children's rows (which come later in the array).
+      const auto dp = [&](size_t j) {
         const uint32_t jj = static_cast<uint32_t>(j);
         float* cj = &cost[j * W];
         uint8_t* sj = &split[j * W];
@@ -1176,7 +1179,7 @@ Bvh Bvh::build(const TriangleInput& input, const BvhOptions& options, BuildInfo*
           for (int k = 0; k < W; ++k) cj[k] = leaf;
           sj[0] = 1;
           for (int k = 1; k < W; ++k) sj[k] = 0;
-          continue;
+          return;
         }
         // best_split for every k at once: m[k - 1] is the least cost[l][a - 1] + cost[r][k - a - 1]
         // over the a best_split would try, arg[k - 1] the first a reaching it (a ascends and
@@ -1230,6 +1233,43 @@ Bvh Bvh::build(const TriangleInput& input, const BvhOptions& options, BuildInfo*
           cj[k - 1] = best;
           sj[k - 1] = static_cast<uint8_t>(better ? arg[k - 1] : 0);
         }
+      };
+      // Children follow their parents, and a node's descendants are one contiguous range after
+      // its sibling pair ([left child, left child + 2 * (leaves - 1)), the depth-first pair
+      // layout), so with threads the subtrees below a cut of at most nb / 64 nodes each are
+      // tasks, and the few nodes above the cut follow in decreasing order. Every row depends
+      // only on the children's: the same tables in any order.
+      if (parallel && nb >= kParallelDpMin) {
+        const uint64_t cut = nb / 64;
+        std::vector<uint32_t> cuts, upper, todo{0};
+        while (!todo.empty()) {
+          const uint32_t j = todo.back();
+          todo.pop_back();
+          if (bin[j].is_leaf() || 2 * uint64_t{sub_leaves[j]} - 1 <= cut) {
+            cuts.push_back(j);
+          } else {
+            upper.push_back(j);
+            todo.push_back(bin[j].left_first);
+            todo.push_back(bin[j].left_first + 1);
+          }
+        }
+        arena.execute([&] {
+          tbb::parallel_for(tbb::blocked_range<size_t>(0, cuts.size(), 1), [&](const tbb::blocked_range<size_t>& r) {
+            for (size_t c = r.begin(); c != r.end(); ++c) {
+              const uint32_t j = cuts[c];
+              if (!bin[j].is_leaf()) {
+                const size_t l = bin[j].left_first, descendants = 2 * size_t{sub_leaves[j]} - 2;
+                for (size_t i = l + descendants; i-- > l;) dp(i);
+              }
+              dp(j);
+            }
+          });
+        });
+        std::sort(upper.begin(), upper.end(), std::greater<>());
+        for (const uint32_t j : upper) dp(j);
+      } else {
+        for (size_t j = nb; j-- > 0;)
+          if (j != 1) dp(j);
       }
       // The children (binary node, as a leaf?) of the wide node made of subtree j with k slots.
       struct Slot {
