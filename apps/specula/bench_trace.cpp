@@ -336,8 +336,8 @@ int bench_trace(const BenchTraceOptions& options) {
     embree_tree = embree_binary_sah(input, options.bvh.max_leaf_size, options.bvh.traversal_cost);
     if (!json)
       std::printf("embree SAH: rtcBuildBVH (medium quality: Embree's binned SAH) on the same triangles with our "
-                  "objective (binary, leaves of <= %d triangles costed per block of 4, node cost %g): SAH cost %.2f (ours %.2f: %.3fx), %zu nodes, %zu "
-                  "leaves, depth %u, %.2f ms on 1 thread\n",
+                  "objective (binary, leaves of <= %d triangles costed per block of 4, node cost %g): SAH cost "
+                  "%.2f (ours %.2f: %.3fx), %zu nodes, %zu leaves, depth %u, %.2f ms on 1 thread\n",
                   embree_tree.max_leaf, static_cast<double>(options.bvh.traversal_cost), embree_tree.sah_cost,
                   info.sah_cost, embree_tree.sah_cost > 0.0 ? info.sah_cost / embree_tree.sah_cost : 0.0,
                   embree_tree.nodes, embree_tree.leaves, embree_tree.depth, embree_tree.build_ms);

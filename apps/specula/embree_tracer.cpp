@@ -226,6 +226,7 @@ double half_area(const RTCBounds& b) {
 
 EmbreeSahTree embree_binary_sah(const TriangleInput& input, int max_leaf, float traversal_cost) {
   EmbreeSahTree out;
+  out.max_leaf = std::clamp(max_leaf, 1, static_cast<int>(RTC_BUILD_MAX_PRIMITIVES_PER_LEAF));
   std::vector<RTCBuildPrimitive> prims;
   const size_t nt = input.indices.size() / 3;
   prims.reserve(nt);
@@ -254,7 +255,6 @@ EmbreeSahTree embree_binary_sah(const TriangleInput& input, int max_leaf, float 
   args.maxDepth = 64;
   args.sahBlockSize = 4;  // leaves cost per block of four triangles, as in our builder
   args.minLeafSize = 1;
-  out.max_leaf = std::clamp(max_leaf, 1, static_cast<int>(RTC_BUILD_MAX_PRIMITIVES_PER_LEAF));
   args.maxLeafSize = static_cast<unsigned>(out.max_leaf);
   args.traversalCost = traversal_cost;
   args.intersectionCost = 1.0f;

@@ -61,7 +61,8 @@ struct EmbreeSahTree {
 /// structure holds) with rtcBuildBVH at RTC_BUILD_QUALITY_MEDIUM, the binned SAH builder behind
 /// Embree's medium scene build, given our builder's objective: two children per node, leaves of
 /// at most \p max_leaf triangles decided by the SAH, charged per block of four triangles (as our
-/// builder and Embree's Triangle4 scene build charge them), node cost \p traversal_cost. Returns the tree's SAH cost as BuildInfo::sah_cost computes it (node half areas times
+/// builder and Embree's Triangle4 scene build charge them), node cost \p traversal_cost.
+/// Returns the tree's SAH cost as BuildInfo::sah_cost computes it (node half areas times
 /// \p traversal_cost, leaves' times their triangles, over the root's), so the two builders'
 /// trees compare directly. Embree's scene BVH itself is not exposed by its API.
 EmbreeSahTree embree_binary_sah(const TriangleInput& input, int max_leaf, float traversal_cost);

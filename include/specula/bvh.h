@@ -88,8 +88,9 @@ struct AlignedAllocator {
     using other = AlignedAllocator<U, Align>;
   };
   T* allocate(size_t n) { return static_cast<T*>(::operator new(n * sizeof(T), std::align_val_t{Align})); }
-  /// Default-initialises (resize() and emplace_back() without arguments leave trivial elements
-  /// unwritten: the builder writes every one of them afterwards, possibly from several threads).
+  /// Default-initialises: resize() and emplace_back() without arguments leave trivial elements
+  /// unwritten. Every user writes each element afterwards (the BVH build's nodes and blocks, the
+  /// latter from several threads; the brute-force tracer's blocks; Bvh::triangles()).
   template <class U, class... Args>
   void construct(U* p, Args&&... args) {
     if constexpr (sizeof...(Args) == 0)
