@@ -1056,42 +1056,42 @@ Bvh Bvh::build(const TriangleInput& input, const BvhOptions& options, BuildInfo*
       // Prefetch distances in blocks: the index triples well ahead, the vertices they name a
       // little ahead (as the BVH-order copy of the triangles did before).
       constexpr uint32_t kAheadIdx = 6, kAheadPos = 2;
-      // Blocks [begin, end); each block depends only on its lanes, so ranges run on any thread.
+      // Blocks [begin, block_end); each depends only on its lanes, so ranges run on any thread.
       const auto fill_range = [&](uint32_t begin, uint32_t block_end) {
-      for (uint32_t b = begin; b < block_end; ++b) {
-        if (b + kAheadIdx < block_end)
+        for (uint32_t b = begin; b < block_end; ++b) {
+          if (b + kAheadIdx < block_end)
+            for (uint32_t lane = 0; lane < kBlock; ++lane) {
+              const uint32_t id = lanes[size_t{kBlock} * (b + kAheadIdx) + lane];
+              if (id != kNoHit) __builtin_prefetch(idx + 3 * size_t{id});
+            }
+          if (b + kAheadPos < block_end)
+            for (uint32_t lane = 0; lane < kBlock; ++lane) {
+              const uint32_t id = lanes[size_t{kBlock} * (b + kAheadPos) + lane];
+              if (id == kNoHit) continue;
+              const uint32_t* ix = idx + 3 * size_t{id};
+              __builtin_prefetch(pos + ix[0]);
+              __builtin_prefetch(pos + ix[1]);
+              __builtin_prefetch(pos + ix[2]);
+            }
+          // As accel::fill_block, into a local stored once into the array: the lanes' vertices
+          // transposed with SSE, (x, y, z, -) per lane -> v[vertex][axis][lane], NaN in unused
+          // lanes.
+          BvhTriangle4 blk;
+          __m128 p[3][4];
           for (uint32_t lane = 0; lane < kBlock; ++lane) {
-            const uint32_t id = lanes[size_t{kBlock} * (b + kAheadIdx) + lane];
-            if (id != kNoHit) __builtin_prefetch(idx + 3 * size_t{id});
+            const uint32_t id = lanes[size_t{kBlock} * b + lane];
+            blk.index[lane] = id;
+            const bool on = id != kNoHit;
+            const uint32_t* ix = idx + 3 * size_t{on ? id : 0};
+            for (int k = 0; k < 3; ++k) p[k][lane] = on ? load_vertex(pos, vcount, ix[k]) : nan4;  // lane 3: dropped by the transpose
           }
-        if (b + kAheadPos < block_end)
-          for (uint32_t lane = 0; lane < kBlock; ++lane) {
-            const uint32_t id = lanes[size_t{kBlock} * (b + kAheadPos) + lane];
-            if (id == kNoHit) continue;
-            const uint32_t* ix = idx + 3 * size_t{id};
-            __builtin_prefetch(pos + ix[0]);
-            __builtin_prefetch(pos + ix[1]);
-            __builtin_prefetch(pos + ix[2]);
+          float* out = &blk.v[0][0][0];  // component j = 3 * vertex + axis at out + 4 * j
+          for (int k = 0; k < 3; ++k) {
+            _MM_TRANSPOSE4_PS(p[k][0], p[k][1], p[k][2], p[k][3]);
+            for (int a = 0; a < 3; ++a) _mm_store_ps(out + 4 * (3 * k + a), p[k][a]);
           }
-        // As accel::fill_block, into a local (emplace_back() would zero the block first): the
-        // lanes' vertices transposed with SSE, (x, y, z, -) per lane -> v[vertex][axis][lane],
-        // NaN in unused lanes.
-        BvhTriangle4 blk;
-        __m128 p[3][4];
-        for (uint32_t lane = 0; lane < kBlock; ++lane) {
-          const uint32_t id = lanes[size_t{kBlock} * b + lane];
-          blk.index[lane] = id;
-          const bool on = id != kNoHit;
-          const uint32_t* ix = idx + 3 * size_t{on ? id : 0};
-          for (int k = 0; k < 3; ++k) p[k][lane] = on ? load_vertex(pos, vcount, ix[k]) : nan4;  // lane 3: dropped by the transpose
+          out_blocks[b] = blk;
         }
-        float* out = &blk.v[0][0][0];  // component j = 3 * vertex + axis at out + 4 * j
-        for (int k = 0; k < 3; ++k) {
-          _MM_TRANSPOSE4_PS(p[k][0], p[k][1], p[k][2], p[k][3]);
-          for (int a = 0; a < 3; ++a) _mm_store_ps(out + 4 * (3 * k + a), p[k][a]);
-        }
-        out_blocks[b] = blk;
-      }
       };
       if (parallel && block_count >= 2 * kFillChunk) {
         arena.execute([&] {
