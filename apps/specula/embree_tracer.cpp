@@ -14,6 +14,7 @@
 
 #include "accel/triangles.h"
 
+#include "specula/bvh.h"
 #include "specula/error.h"
 #include "specula/timer.h"
 
@@ -216,12 +217,6 @@ void* sah_create_leaf(RTCThreadLocalAllocator alloc, const RTCBuildPrimitive*, s
   return n;
 }
 
-/// Half the surface area of \p b as binary_sah_cost() takes it: float extents, products and
-/// sum in double (0 for an empty box).
-double half_area(const RTCBounds& b) {
-  const float ex = b.upper_x - b.lower_x, ey = b.upper_y - b.lower_y, ez = b.upper_z - b.lower_z;
-  return (ex >= 0 && ey >= 0 && ez >= 0) ? double{ex} * ey + double{ey} * ez + double{ez} * ex : 0.0;
-}
 }  // namespace
 
 EmbreeSahTree embree_binary_sah(const TriangleInput& input, int max_leaf, float traversal_cost) {
@@ -276,29 +271,36 @@ EmbreeSahTree embree_binary_sah(const TriangleInput& input, int max_leaf, float 
     rtcReleaseDevice(device);
     throw Error("embree: rtcBuildBVH failed (error " + std::to_string(static_cast<int>(err)) + ")");
   }
-  // Every node's box is in its parent; the root's is the triangles' bounds.
+  // The tree as BvhNodes (node 0 the root, node 1 padding, as Bvh::nodes()), scored by the very
+  // function that gives BuildInfo::sah_cost. Every node's box is in its parent; the root's is
+  // the triangles' bounds.
+  const auto node_of = [](const RTCBounds& b, const SahNode* n) {
+    BvhNode node;
+    node.min = {b.lower_x, b.lower_y, b.lower_z};
+    node.max = {b.upper_x, b.upper_y, b.upper_z};
+    node.count = n->leaf ? n->count : 0;
+    return node;
+  };
   struct Item {
     const SahNode* node;
-    RTCBounds box;
     uint32_t depth;
   };
-  std::vector<Item> stack{{static_cast<const SahNode*>(top), root, 0}};
-  double sum = 0.0;
+  const auto* const root_node = static_cast<const SahNode*>(top);
+  std::vector<BvhNode> nodes{node_of(root, root_node), BvhNode{}};
+  std::vector<Item> stack{{root_node, 0}};
   while (!stack.empty()) {
     const Item it = stack.back();
     stack.pop_back();
-    ++out.nodes;
     out.depth = std::max(out.depth, it.depth);
-    if (it.node->leaf) {
-      ++out.leaves;
-      sum += half_area(it.box) * it.node->count;
-      continue;
+    if (it.node->leaf) continue;
+    for (unsigned i = 0; i < it.node->count && i < 2; ++i) {
+      nodes.push_back(node_of(it.node->box[i], it.node->child[i]));
+      stack.push_back({it.node->child[i], it.depth + 1});
     }
-    sum += half_area(it.box) * traversal_cost;
-    for (unsigned i = 0; i < it.node->count && i < 2; ++i) stack.push_back({it.node->child[i], it.node->box[i], it.depth + 1});
   }
-  const double r = half_area(root);
-  out.sah_cost = r > 0.0 ? sum / r : static_cast<double>(prims.size());
+  out.nodes = nodes.size() - 1;  // without the padding
+  out.leaves = static_cast<size_t>(std::count_if(nodes.begin(), nodes.end(), [](const BvhNode& n) { return n.is_leaf(); }));
+  out.sah_cost = binary_sah_cost(nodes, traversal_cost);
   rtcReleaseBVH(bvh);
   rtcReleaseDevice(device);
   return out;

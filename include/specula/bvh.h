@@ -104,6 +104,13 @@ struct AlignedAllocator {
 };
 }  // namespace detail
 
+/// The SAH cost of a binary tree in Bvh::nodes()' layout, as BuildInfo::sah_cost reports it:
+/// node half areas times \p traversal_cost (1 unless that is finite and >= 0), leaves' times their
+/// triangles, over the root's; a flat root gives the triangle count. Node 0 is the root, node 1
+/// is skipped (padding); the other nodes may come in any order, only their boxes and counts
+/// are read.
+double binary_sah_cost(std::span<const BvhNode> nodes, float traversal_cost);
+
 /// The BVH. Immutable after build; all queries are const and safe to call from many threads.
 class Bvh final : public Tracer {
  public:

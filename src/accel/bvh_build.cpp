@@ -813,9 +813,8 @@ struct RootBounds {
   }
 };
 
-/// BuildInfo::sah_cost of a binary tree in the builder's layout, as step 5 of the build
-/// computes it (interior half areas times the traversal cost, leaves' times their triangles,
-/// over the root's).
+}  // namespace
+
 double binary_sah_cost(std::span<const BvhNode> nodes, float traversal_cost) {
   const double tc = std::isfinite(traversal_cost) && traversal_cost >= 0.0f ? traversal_cost : 1.0;
   const auto area = [](const BvhNode& nd) {
@@ -832,8 +831,6 @@ double binary_sah_cost(std::span<const BvhNode> nodes, float traversal_cost) {
   const double root = area(nodes[0]);
   return root > 0.0 ? sum / root : triangles;  // (a flat root: every triangle tested)
 }
-
-}  // namespace
 
 Bvh Bvh::build(const TriangleInput& input, const BvhOptions& options, BuildInfo* info) {
   const Timer timer;
