@@ -547,6 +547,21 @@ TEST_F(Cli, BenchTraceJsonHasEveryRayKindAndTheKernel) {
     EXPECT_NE(t.out.find(std::string("\n") + k + " "), std::string::npos) << k << "\n" << t.out;
   EXPECT_NE(t.out.find("nodes/ray"), std::string::npos) << t.out;
   EXPECT_NE(t.out.find("\ncpu: "), std::string::npos) << t.out;  // which processor the figures are from
+  // One column per thread count: "2T" beside "1T" with two threads; with one thread a single
+  // column (not the one-thread figures twice), and the JSON's all-threads figures are those.
+  const RunResult t2 = run_cli("bench trace --scene cornell --width 24 --height 16 --repeat 1 --no-embree --threads 2", dir_);
+  ASSERT_EQ(t2.exit_code, 0) << t2.err;
+  EXPECT_NE(t2.out.find("specula 1T   specula 2T"), std::string::npos) << t2.out;
+  EXPECT_NE(t2.out.find(", 2 threads,"), std::string::npos) << t2.out;
+  const RunResult t1 = run_cli("bench trace --scene cornell --width 24 --height 16 --repeat 1 --no-embree --threads 1", dir_);
+  ASSERT_EQ(t1.exit_code, 0) << t1.err;
+  EXPECT_NE(t1.out.find("|   specula 1T | nodes/ray"), std::string::npos) << t1.out;
+  EXPECT_EQ(t1.out.find("specula 1T   specula 1T"), std::string::npos) << t1.out;
+  EXPECT_NE(t1.out.find(", 1 thread,"), std::string::npos) << t1.out;
+  const RunResult j1 = run_cli("bench trace --scene cornell --width 24 --height 16 --repeat 1 --no-embree --threads 1 --json", dir_);
+  ASSERT_EQ(j1.exit_code, 0) << j1.err;
+  for (const auto& k : nlohmann::json::parse(j1.out)["results"])
+    EXPECT_EQ(k["specula_nt"].get<double>(), k["specula_1t"].get<double>()) << k.dump();
   EXPECT_NE(run_cli("bench trace --scene cornell --bvh-kernel avx9", dir_).exit_code, 0);
   // --embree-robust asks for an Embree comparison: with --no-embree it is a usage error.
   const RunResult robust_none = run_cli("bench trace --scene cornell --no-embree --embree-robust", dir_);

@@ -245,9 +245,12 @@ int bench_trace(const BenchTraceOptions& options) {
   const bool json = options.json;
   const CpuInfo cpu = cpu_info();
   if (!json)
-    std::printf("bench trace: %s, %zu triangles, %dx%d rays from camera '%s', %d threads, median of %d\n%s\n",
+    std::printf("bench trace: %s, %zu triangles, %dx%d rays from camera '%s', %d thread%s, median of %d\n%s\n",
                 spec.c_str(), scene.triangle_count(), options.width, options.height,
-                scene.cameras.front().name.c_str(), threads, repeat, cpu_line(cpu).c_str());
+                scene.cameras.front().name.c_str(), threads, threads == 1 ? "" : "s", repeat, cpu_line(cpu).c_str());
+  // With --threads 1 the "all threads" measurements would repeat the one-thread ones: they are
+  // taken once, and the tables show one column of each.
+  const bool multi = threads > 1;
 
   // Build: one thread, then all threads.
   BvhOptions bopt = options.bvh;
@@ -259,6 +262,10 @@ int bench_trace(const BenchTraceOptions& options) {
     bopt.threads = 1;
     bvh = build_tracer(AccelKind::Bvh, input, bopt, &info);
     b1.push_back(info.build_ms);
+    if (!multi) {
+      bn.push_back(b1.back());
+      continue;
+    }
     bopt.threads = threads;
     bvh = build_tracer(AccelKind::Bvh, input, bopt, &info);
     bn.push_back(info.build_ms);
@@ -328,6 +335,10 @@ int bench_trace(const BenchTraceOptions& options) {
       double ms = 0.0;
       embree1 = std::make_unique<EmbreeTracer>(input, 1, &ms, options.embree_robust);
       e1.push_back(ms);
+      if (!multi) {
+        en.push_back(ms);
+        continue;
+      }
       embreen = std::make_unique<EmbreeTracer>(input, threads, &ms, options.embree_robust);
       en.push_back(ms);
     }
@@ -365,7 +376,7 @@ int bench_trace(const BenchTraceOptions& options) {
   const Tracer* e1t = nullptr;
   const Tracer* ent = nullptr;
 #ifdef SPECULA_HAVE_EMBREE
-  if (with_embree) e1t = embree1.get(), ent = embreen.get();
+  if (with_embree) e1t = embree1.get(), ent = multi ? embreen.get() : e1t;
 #endif
   // What a ray of each kind costs our tree, from an extra pass with statistics (untimed).
   const auto work = [](const Tracer& tracer, const RaySet& set) {
@@ -381,7 +392,7 @@ int bench_trace(const BenchTraceOptions& options) {
   };
   for (const RaySet& set : sets) {
     const auto [s1, x1] = trace_mrays(*bvh, e1t, set, 1, repeat);
-    const auto [sn, xn] = trace_mrays(*bvh, ent, set, threads, repeat);
+    const auto [sn, xn] = multi ? trace_mrays(*bvh, ent, set, threads, repeat) : std::pair{s1, x1};
     Row row{set.name, set.rays.size(), "Mrays/s", s1, sn, x1, xn, false};
     if (!set.rays.empty()) {
       const TraceStats st = work(*bvh, set);
@@ -397,13 +408,15 @@ int bench_trace(const BenchTraceOptions& options) {
   for (const RaySet& set : packet_sets) {
 #ifdef SPECULA_HAVE_EMBREE
     if (with_embree)
-      for (Tracer* e : {embree1.get(), embreen.get()}) static_cast<EmbreeTracer*>(e)->use_packets(true);
+      for (Tracer* e : {embree1.get(), embreen.get()})
+        if (e) static_cast<EmbreeTracer*>(e)->use_packets(true);
 #endif
     const auto [s1, x1] = trace_mrays(*bvh_packets, e1t, set, 1, repeat);
-    const auto [sn, xn] = trace_mrays(*bvh_packets, ent, set, threads, repeat);
+    const auto [sn, xn] = multi ? trace_mrays(*bvh_packets, ent, set, threads, repeat) : std::pair{s1, x1};
 #ifdef SPECULA_HAVE_EMBREE
     if (with_embree)
-      for (Tracer* e : {embree1.get(), embreen.get()}) static_cast<EmbreeTracer*>(e)->use_packets(false);
+      for (Tracer* e : {embree1.get(), embreen.get()})
+        if (e) static_cast<EmbreeTracer*>(e)->use_packets(false);
 #endif
     packet_rows.push_back({set.name, set.rays.size(), "Mrays/s", s1, sn, x1, xn, false});
     const TraceStats st = set.rays.empty() ? TraceStats{} : work(*bvh_packets, set);
@@ -494,21 +507,33 @@ int bench_trace(const BenchTraceOptions& options) {
     return 0;
   }
 
-  std::printf("\n%-10s %9s %8s | %12s %12s", "", "rays", "unit", "specula 1T", ("specula " + std::to_string(threads) + "T").c_str());
-  if (with_embree)
-    std::printf(" | %12s %12s | %9s %9s", "embree 1T", ("embree " + std::to_string(threads) + "T").c_str(), "ours/e 1T",
-                ("ours/e " + std::to_string(threads) + "T").c_str());
+  // One column per thread count: 1T, and nT unless n is 1.
+  const std::string nt = std::to_string(threads) + "T";
+  const auto cells = [&](int width, const std::string& one, const std::string& all) {
+    std::printf(" %*s", width, one.c_str());
+    if (multi) std::printf(" %*s", width, all.c_str());
+  };
+  const auto ratio_cell = [&](const Row& r, double ours, double theirs) {
+    const double x = ratio(r, ours, theirs);
+    return x > 0.0 ? fmt("%.2fx", x) : std::string("-");
+  };
+  std::printf("\n%-10s %9s %8s |", "", "rays", "unit");
+  cells(12, "specula 1T", "specula " + nt);
+  if (with_embree) {
+    std::printf(" |");
+    cells(12, "embree 1T", "embree " + nt);
+    std::printf(" |");
+    cells(9, "ours/e 1T", "ours/e " + nt);
+  }
   std::printf(" | %9s %9s\n", "nodes/ray", "tris/ray");
   for (const Row& r : rows) {
-    std::printf("%-10s %9zu %8s | %12s %12s", r.name.c_str(), r.count, r.unit, fmt("%.2f", r.s1).c_str(),
-                fmt("%.2f", r.sn).c_str());
+    std::printf("%-10s %9zu %8s |", r.name.c_str(), r.count, r.unit);
+    cells(12, fmt("%.2f", r.s1), fmt("%.2f", r.sn));
     if (with_embree) {
-      const auto rt = [&](double ours, double theirs) {
-        const double x = ratio(r, ours, theirs);
-        return x > 0.0 ? fmt("%.2fx", x) : std::string("-");
-      };
-      std::printf(" | %12s %12s | %9s %9s", fmt("%.2f", r.e1).c_str(), fmt("%.2f", r.en).c_str(), rt(r.s1, r.e1).c_str(),
-                  rt(r.sn, r.en).c_str());
+      std::printf(" |");
+      cells(12, fmt("%.2f", r.e1), fmt("%.2f", r.en));
+      std::printf(" |");
+      cells(9, ratio_cell(r, r.s1, r.e1), ratio_cell(r, r.sn, r.en));
     }
     if (r.name == "build")
       std::printf(" | %9s %9s\n", "", "");
@@ -517,23 +542,24 @@ int bench_trace(const BenchTraceOptions& options) {
   }
   if (!packet_rows.empty()) {
     std::printf("\npackets: 16 rays in 4x4 pixel blocks; Embree rtcIntersect16 / rtcOccluded16 (coherent context)\n");
-    std::printf("%-10s %9s %8s | %12s %12s", "", "rays", "in pkts", "specula 1T",
-                ("specula " + std::to_string(threads) + "T").c_str());
-    if (with_embree)
-      std::printf(" | %12s %12s | %9s %9s", "embree16 1T", ("embree16 " + std::to_string(threads) + "T").c_str(),
-                  "ours/e 1T", ("ours/e " + std::to_string(threads) + "T").c_str());
+    std::printf("%-10s %9s %8s |", "", "rays", "in pkts");
+    cells(12, "specula 1T", "specula " + nt);
+    if (with_embree) {
+      std::printf(" |");
+      cells(12, "embree16 1T", "embree16 " + nt);
+      std::printf(" |");
+      cells(9, "ours/e 1T", "ours/e " + nt);
+    }
     std::printf("\n");
     for (size_t i = 0; i < packet_rows.size(); ++i) {
       const Row& r = packet_rows[i];
-      std::printf("%-10s %9zu %8s | %12s %12s", r.name.c_str(), r.count, fmt("%.0f%%", 100.0 * packet_share[i]).c_str(),
-                  fmt("%.2f", r.s1).c_str(), fmt("%.2f", r.sn).c_str());
+      std::printf("%-10s %9zu %8s |", r.name.c_str(), r.count, fmt("%.0f%%", 100.0 * packet_share[i]).c_str());
+      cells(12, fmt("%.2f", r.s1), fmt("%.2f", r.sn));
       if (with_embree) {
-        const auto rt = [&](double ours, double theirs) {
-          const double x = ratio(r, ours, theirs);
-          return x > 0.0 ? fmt("%.2fx", x) : std::string("-");
-        };
-        std::printf(" | %12s %12s | %9s %9s", fmt("%.2f", r.e1).c_str(), fmt("%.2f", r.en).c_str(),
-                    rt(r.s1, r.e1).c_str(), rt(r.sn, r.en).c_str());
+        std::printf(" |");
+        cells(12, fmt("%.2f", r.e1), fmt("%.2f", r.en));
+        std::printf(" |");
+        cells(9, ratio_cell(r, r.s1, r.e1), ratio_cell(r, r.sn, r.en));
       }
       std::printf("\n");
     }
