@@ -5,6 +5,8 @@
 // tiles), and random rays through the grid (incoherent). Pool: the built-in scene voxelized at
 // depth 8 as `specula bench svo` does, 640 x 480 primary rays of the water / bunny / parallel
 // cameras in the integrator's 16 x 16 tiles, and shadow rays towards the sun from their hits.
+// Pool bunny view with contours at 1920x1200 (issue 3's slowest cells outside the voxels): its
+// primary rays made and traced tile by tile as the integrator does, at depths 5 and 7.
 #include <benchmark/benchmark.h>
 
 #include <cmath>
@@ -201,6 +203,62 @@ void BM_SvoPoolShadow(benchmark::State& state) {
   p.svo->transmittance(rays, out, &stats);
   pool_counters(state, *p.svo, rays.size(), stats);
 }
+/// The bunny view at 1920x1200 with contours (issue 3's slowest cells), depth from the argument:
+/// primary rays as the integrator makes and traces them, one batch per 16 x 16 tile in 4 x 4
+/// pixel blocks, generated just before they are traced (so they are in the cache, as the
+/// integrator's are; a frame's 2.3 M rays read back from memory would cost more than tracing).
+struct PoolHd {
+  std::unique_ptr<VoxelTracer> svo;
+  Camera camera;
+};
+
+const PoolHd& pool_hd(int depth) {
+  static std::map<int, PoolHd> cache;
+  auto it = cache.find(depth);
+  if (it != cache.end()) return it->second;
+  PoolHd r;
+  const Scene scene = load_scene("pool", LoadOptions{});
+  SceneVoxelOptions vo;
+  vo.depth = depth;
+  vo.threads = 1;
+  vo.tracer.mode = VoxelHitMode::Contours;
+  r.svo = voxelize_scene(scene, vo);
+  r.camera = scene.cameras[*scene.find_camera("bunny")];
+  return cache.emplace(depth, std::move(r)).first->second;
+}
+
+// Arg: octree depth.
+void BM_SvoPoolBunnyContoursHd(benchmark::State& state) {
+  const PoolHd& p = pool_hd(static_cast<int>(state.range(0)));
+  const int w = 1920, h = 1200;
+  const PinholeCamera cam(p.camera, w, h);
+  std::vector<Ray> rays(256);
+  std::vector<Hit> hits(256);
+  const auto frame = [&](TraceStats* stats) {
+    size_t hit = 0;
+    for (int ty = 0; ty < h; ty += 16)
+      for (int tx = 0; tx < w; tx += 16) {
+        size_t k = 0;
+        for (int by = ty; by < ty + 16; by += 4)
+          for (int bx = tx; bx < tx + 16; bx += 4)
+            for (int y = by; y < by + 4; ++y)
+              for (int x = bx; x < bx + 4; ++x)
+                rays[k++] = cam.generate(static_cast<float>(x) + 0.5f, static_cast<float>(y) + 0.5f);
+        p.svo->intersect(rays, hits, stats);
+        for (const Hit& hh : hits) hit += hh.hit() ? 1 : 0;
+      }
+    return hit;
+  };
+  for (auto _ : state) benchmark::DoNotOptimize(frame(nullptr));
+  TraceStats stats;
+  const size_t hit = frame(&stats);
+  const size_t n = static_cast<size_t>(w) * static_cast<size_t>(h);
+  pool_counters(state, *p.svo, n, stats);
+  state.counters["tests/ray"] = static_cast<double>(stats.triangles_tested) / static_cast<double>(n);
+  state.counters["hit%"] = 100.0 * static_cast<double>(hit) / static_cast<double>(n);
+}
+
+BENCHMARK(BM_SvoPoolBunnyContoursHd)->Arg(5)->Arg(7)->ArgName("depth")->Unit(benchmark::kMillisecond);
 BENCHMARK(BM_SvoPoolPrimary)->Arg(0)->Arg(1)->Arg(2)->ArgName("camera")->Unit(benchmark::kMillisecond);
 BENCHMARK(BM_SvoPoolShadow)->Arg(0)->Arg(1)->Arg(2)->ArgName("camera")->Unit(benchmark::kMillisecond);
 
