@@ -407,10 +407,10 @@ TEST(SvoPacket, BatchLocalRaysEqualTheKernelsOwn) {
 /// Restores the packet width limit at scope exit.
 struct PacketWidth {
   explicit PacketWidth(int w) { voxel::set_svo_packet_width_limit(w); }
-  ~PacketWidth() { voxel::set_svo_packet_width_limit(16); }
+  ~PacketWidth() { voxel::set_svo_packet_width_limit(32); }
 };
 
-// The packet kernels (16 lanes with AVX-512, 8 with AVX2) and the single-ray traversal give
+// The packet kernels (32 and 16 lanes with AVX-512, 8 with AVX2) and the single-ray traversal give
 // bit-identical hits and transmittance to the brute force (the grid for the largest set), batch by batch and ray by ray,
 // in both hit modes, with and without level of detail and material skipping.
 TEST(SvoPacket, EveryKernelEqualsBruteForceOnCoherentBundles) {
@@ -451,7 +451,7 @@ TEST(SvoPacket, EveryKernelEqualsBruteForceOnCoherentBundles) {
         EXPECT_EQ(differ, 0u) << c.name << " " << to_string(mode) << ": grid skipping the left voxel";
       }
       SparseVoxelOctree svo = SparseVoxelOctree::build(c.set, o);
-      for (const int width : {16, 8, 1}) {
+      for (const int width : {32, 16, 8, 1}) {
         if (width > cpu && width != 1) continue;
         const PacketWidth limit(width);
         const std::string what = c.name + " " + to_string(mode) + " width " + std::to_string(width);
@@ -503,7 +503,7 @@ TEST(SvoPacket, EveryKernelEqualsBruteForceOnCoherentBundles) {
         const PacketWidth limit(1);
         svo.intersect(rays, lod_ref);
       }
-      for (const int width : {16, 8}) {
+      for (const int width : {32, 16, 8}) {
         if (width > cpu) continue;
         const PacketWidth limit(width);
         std::vector<Hit> hits(rays.size());
@@ -597,7 +597,7 @@ TEST(SvoPacket, LeafSpansOfPacketsEqualTheKernelOnLatticeRays) {
       (ref[i].t == rays[i].tmin ? starts_inside : face_hits) += 1;
     }
     const SparseVoxelOctree svo = SparseVoxelOctree::build(set, o);
-    for (const int width : {16, 8, 1}) {
+    for (const int width : {32, 16, 8, 1}) {
       if (width > cpu && width != 1) continue;
       const PacketWidth limit(width);
       const std::string what = std::string(to_string(mode)) + " width " + std::to_string(width);

@@ -181,20 +181,60 @@ bool walk_node(const SvoView& v, const LocalRay& r, int level, const int32_t c[3
   }
 }
 
-/// Up to 16 rays of one direction octant (same mirror) in structure-of-arrays form, in the
-/// grid's local frame; fixed axes have inv = +inf (see the file comment).
+/// The widest packet: two AVX-512 vectors.
+constexpr int kMaxPacket = 32;
+
+/// Up to kMaxPacket rays of one direction octant (same mirror) in structure-of-arrays form, in
+/// the grid's local frame; fixed axes have inv = +inf (see the file comment).
 struct alignas(64) PacketRays {
-  float o[3][16];
-  float inv[3][16];
-  float d[3][16];  ///< direction, 0 on fixed axes (as LocalRay::d; for the contour test)
-  float tmin[16];
-  float tmax[16];
-  float scale;     ///< LocalRay::scale, the same for every ray of a batch
+  float o[3][kMaxPacket];
+  float inv[3][kMaxPacket];
+  float d[3][kMaxPacket];  ///< direction, 0 on fixed axes (as LocalRay::d; for the contour test)
+  float tmin[kMaxPacket];
+  float tmax[kMaxPacket];
+  float scale;             ///< LocalRay::scale, the same for every ray of a batch
 };
+
+/// 32 lanes as two AVX-512 vectors, for the widest packets: the operations the packet kernel
+/// uses, lane by lane, with lane masks of 32 bits (bits 16-31 from the second vector).
+struct alignas(64) V32 {
+  __m512 lo, hi;
+};
+#define SPECULA_V32 __attribute__((target("avx2,avx512f,popcnt,bmi"), always_inline)) inline
+SPECULA_V32 V32 v32_load(const float* p) { return {_mm512_load_ps(p), _mm512_load_ps(p + 16)}; }
+SPECULA_V32 void v32_store(float* p, V32 a) {
+  _mm512_store_ps(p, a.lo);
+  _mm512_store_ps(p + 16, a.hi);
+}
+SPECULA_V32 V32 v32_set1(float x) { return {_mm512_set1_ps(x), _mm512_set1_ps(x)}; }
+SPECULA_V32 V32 v32_add(V32 a, V32 b) { return {_mm512_add_ps(a.lo, b.lo), _mm512_add_ps(a.hi, b.hi)}; }
+SPECULA_V32 V32 v32_sub(V32 a, V32 b) { return {_mm512_sub_ps(a.lo, b.lo), _mm512_sub_ps(a.hi, b.hi)}; }
+SPECULA_V32 V32 v32_mul(V32 a, V32 b) { return {_mm512_mul_ps(a.lo, b.lo), _mm512_mul_ps(a.hi, b.hi)}; }
+SPECULA_V32 V32 v32_div(V32 a, V32 b) { return {_mm512_div_ps(a.lo, b.lo), _mm512_div_ps(a.hi, b.hi)}; }
+// Zero-masking forms with every lane set, as for 16 lanes (see SVO_MIN below).
+SPECULA_V32 V32 v32_min(V32 a, V32 b) {
+  return {_mm512_maskz_min_ps(0xFFFF, a.lo, b.lo), _mm512_maskz_min_ps(0xFFFF, a.hi, b.hi)};
+}
+SPECULA_V32 V32 v32_max(V32 a, V32 b) {
+  return {_mm512_maskz_max_ps(0xFFFF, a.lo, b.lo), _mm512_maskz_max_ps(0xFFFF, a.hi, b.hi)};
+}
+template <int kCmp>
+SPECULA_V32 uint32_t v32_cmp(V32 a, V32 b) {
+  return static_cast<uint32_t>(_mm512_cmp_ps_mask(a.lo, b.lo, kCmp)) |
+         static_cast<uint32_t>(_mm512_cmp_ps_mask(a.hi, b.hi, kCmp)) << 16;
+}
+/// Per lane a >= b ? x : y (ordered).
+SPECULA_V32 V32 v32_sel_ge(V32 a, V32 b, V32 x, V32 y) {
+  return {_mm512_mask_blend_ps(_mm512_cmp_ps_mask(a.lo, b.lo, _CMP_GE_OQ), y.lo, x.lo),
+          _mm512_mask_blend_ps(_mm512_cmp_ps_mask(a.hi, b.hi, _CMP_GE_OQ), y.hi, x.hi)};
+}
+#undef SPECULA_V32
 
 }  // namespace specula
 
-// The packet kernels: one source, compiled per vector width and instruction set.
+// The packet kernels: one source, compiled per vector width and instruction set: 8 lanes
+// (AVX2), 16 (AVX-512) and 32 (AVX-512, V32 above: the default there; 16 is kept for the tests
+// and for comparison).
 #define SVO_NS svo_avx2
 #define SVO_TARGET __attribute__((target("avx2,popcnt,bmi")))
 #define SVO_WIDTH 8
@@ -237,22 +277,46 @@ struct alignas(64) PacketRays {
 #define SVO_EQ(a, b) static_cast<uint32_t>(_mm512_cmp_ps_mask((a), (b), _CMP_EQ_OQ))
 #include "voxel/svo_packet.inc"  // (undefines the SVO_ macros at its end)
 
+#define SVO_NS svo_avx512x2
+#define SVO_TARGET __attribute__((target("avx2,avx512f,popcnt,bmi")))
+#define SVO_WIDTH 32
+#define SVO_VF V32
+#define SVO_LOAD v32_load
+#define SVO_SET1 v32_set1
+#define SVO_SUB v32_sub
+#define SVO_MUL v32_mul
+#define SVO_MIN v32_min
+#define SVO_MAX v32_max
+#define SVO_LT(a, b) v32_cmp<_CMP_LT_OQ>((a), (b))
+#define SVO_GE(a, b) v32_cmp<_CMP_GE_OQ>((a), (b))
+#define SVO_SEL_GE(a, b, x, y) v32_sel_ge((a), (b), (x), (y))
+#define SVO_STORE v32_store
+#define SVO_ADD v32_add
+#define SVO_DIV v32_div
+#define SVO_LE(a, b) v32_cmp<_CMP_LE_OQ>((a), (b))
+#define SVO_EQ(a, b) v32_cmp<_CMP_EQ_OQ>((a), (b))
+#include "voxel/svo_packet.inc"  // (undefines the SVO_ macros at its end)
+
 namespace specula {
 
 namespace voxel {
 namespace {
-std::atomic<int> g_packet_width_limit{16};
+std::atomic<int> g_packet_width_limit{kMaxPacket};
 
 int cpu_packet_width() {
   static const int width = [] {
     if (!__builtin_cpu_supports("avx2") || !__builtin_cpu_supports("popcnt") || !__builtin_cpu_supports("bmi")) return 1;
-    return __builtin_cpu_supports("avx512f") ? 16 : 8;
+    return __builtin_cpu_supports("avx512f") ? 32 : 8;
   }();
   return width;
 }
 }  // namespace
 
-int svo_packet_width() { return std::min(cpu_packet_width(), g_packet_width_limit.load(std::memory_order_relaxed)); }
+int svo_packet_width() {
+  // The widest kernel (32, 16, 8 lanes, or single rays) within the CPU's and the limit.
+  const int w = std::min(cpu_packet_width(), g_packet_width_limit.load(std::memory_order_relaxed));
+  return w >= 32 ? 32 : w >= 16 ? 16 : w >= 8 ? 8 : 1;
+}
 void set_svo_packet_width_limit(int width) { g_packet_width_limit.store(std::max(width, 1), std::memory_order_relaxed); }
 }  // namespace voxel
 
@@ -361,9 +425,9 @@ class SvoTraversal {
     PacketRays p;
     p.scale = frame.scale;
     const int spans = v.shift != 0 ? 0 : v.mode == VoxelHitMode::Contours ? 2 : 1;
-    LocalRay coarse[16];      // the lanes' rays in the lod level's frame (shift > 0 only)
-    const LocalRay* rl[16];   // each lane's ray for the leaf tests
-    uint32_t idx[16];
+    LocalRay coarse[kMaxPacket];     // the lanes' rays in the lod level's frame (shift > 0 only)
+    const LocalRay* rl[kMaxPacket];  // each lane's ray for the leaf tests
+    uint32_t idx[kMaxPacket];
     for (uint32_t begin = 0, octant_end = 0; begin < valid; begin = std::min(begin + static_cast<uint32_t>(width), octant_end)) {
       // Packets never straddle two octants.
       const uint32_t mirror = lr[ord[begin]].mirror;
@@ -409,7 +473,8 @@ class SvoTraversal {
       // Spans from the packet's planes when the leaves are voxels, and in contour mode the slab
       // test too (see packet_walk): kSpan 0 none, 1 spans, 2 spans and contours.
       const auto run = [&]<bool kFixed, int kSpan>() {
-        if (width == 16) svo_avx512::packet_walk<kStats, kFixed, kSpan>(v, p, mirror, lanes, stats, leaf, scalar);
+        if (width == 32) svo_avx512x2::packet_walk<kStats, kFixed, kSpan>(v, p, mirror, lanes, stats, leaf, scalar);
+        else if (width == 16) svo_avx512::packet_walk<kStats, kFixed, kSpan>(v, p, mirror, lanes, stats, leaf, scalar);
         else svo_avx2::packet_walk<kStats, kFixed, kSpan>(v, p, mirror, lanes, stats, leaf, scalar);
       };
       if (fixed) {

@@ -203,7 +203,7 @@ inline bool hit_span(const LocalRay& r, const uint32_t c[3], const VoxelAttribut
     s0 = -kInf;
     s1 = kInf;
   } else {
-    // One division for both planes (the octree's packets divide a vector of 16 lanes here,
+    // One division for both planes (the octree's packets divide vectors of 16 lanes here,
     // whose latency and throughput are those of a dozen multiplications).
     const float inv_nd = 1.0f / nd;
     const float ta = (klo - no) * inv_nd, tb = (khi - no) * inv_nd;
@@ -245,8 +245,9 @@ inline bool hit_cell(const LocalRay& r, const uint32_t c[3], const VoxelAttribut
   return cell_span(r, c, s) && hit_span(r, c, a, mode, s, h);
 }
 
-/// Width of the octree's packet traversal on this CPU (16 with AVX-512, 8 with AVX2, 1 = single
-/// rays only), capped by set_svo_packet_width_limit (tests use it to run every kernel).
+/// Width of the octree's packet traversal on this CPU (32 with AVX-512, 8 with AVX2, 1 = single
+/// rays only), capped by set_svo_packet_width_limit (tests use it to run every kernel: the
+/// widest of 32, 16, 8 and 1 within the cap).
 int svo_packet_width();
 void set_svo_packet_width_limit(int width);
 
