@@ -22,6 +22,7 @@
 #include "specula/voxel_scene.h"
 #include "specula/voxel_grid.h"
 #include "specula/voxel_tracer.h"
+#include "voxel/voxel_brute.h"  // the packet kernel selection
 
 namespace {
 
@@ -227,8 +228,19 @@ const PoolHd& pool_hd(int depth) {
   return cache.emplace(depth, std::move(r)).first->second;
 }
 
-// Arg: octree depth.
+// Args: octree depth; packet kernel (0: this CPU's default, 1: AVX-512 16 lanes, 2: AVX2 16
+// lanes as two vectors, 3: AVX2 8 lanes; a kernel this CPU lacks is skipped).
 void BM_SvoPoolBunnyContoursHd(benchmark::State& state) {
+  constexpr voxel::SvoPacketKernel kKernels[] = {{32, true}, {16, true}, {16, false}, {8, false}};
+  const voxel::SvoPacketKernel want = kKernels[state.range(1)];
+  voxel::set_svo_packet_width_limit(want.width, want.avx512);
+  const voxel::SvoPacketKernel got = voxel::svo_packet_kernel();
+  if (state.range(1) != 0 && (got.width != want.width || got.avx512 != want.avx512)) {
+    voxel::set_svo_packet_width_limit(32, true);
+    state.SkipWithError("this CPU does not run that packet kernel");
+    return;
+  }
+  state.SetLabel(std::to_string(got.width) + (got.avx512 ? " lanes avx512" : got.width > 1 ? " lanes avx2" : " (single rays)"));
   const PoolHd& p = pool_hd(static_cast<int>(state.range(0)));
   const int w = 1920, h = 1200;
   const PinholeCamera cam(p.camera, w, h);
@@ -256,9 +268,13 @@ void BM_SvoPoolBunnyContoursHd(benchmark::State& state) {
   pool_counters(state, *p.svo, n, stats);
   state.counters["tests/ray"] = static_cast<double>(stats.triangles_tested) / static_cast<double>(n);
   state.counters["hit%"] = 100.0 * static_cast<double>(hit) / static_cast<double>(n);
+  voxel::set_svo_packet_width_limit(32, true);
 }
 
-BENCHMARK(BM_SvoPoolBunnyContoursHd)->Arg(5)->Arg(7)->ArgName("depth")->Unit(benchmark::kMillisecond);
+BENCHMARK(BM_SvoPoolBunnyContoursHd)
+    ->ArgsProduct({{5, 7}, {0, 1, 2, 3}})
+    ->ArgNames({"depth", "kernel"})
+    ->Unit(benchmark::kMillisecond);
 BENCHMARK(BM_SvoPoolPrimary)->Arg(0)->Arg(1)->Arg(2)->ArgName("camera")->Unit(benchmark::kMillisecond);
 BENCHMARK(BM_SvoPoolShadow)->Arg(0)->Arg(1)->Arg(2)->ArgName("camera")->Unit(benchmark::kMillisecond);
 

@@ -404,13 +404,27 @@ TEST(SvoPacket, BatchLocalRaysEqualTheKernelsOwn) {
   }
 }
 
-/// Restores the packet width limit at scope exit.
+/// Limits the packet kernel (width, AVX-512 or not) for its scope.
 struct PacketWidth {
-  explicit PacketWidth(int w) { voxel::set_svo_packet_width_limit(w); }
-  ~PacketWidth() { voxel::set_svo_packet_width_limit(32); }
+  explicit PacketWidth(int w, bool avx512 = true) { voxel::set_svo_packet_width_limit(w, avx512); }
+  ~PacketWidth() { voxel::set_svo_packet_width_limit(32, true); }
 };
 
-// The packet kernels (32 and 16 lanes with AVX-512, 8 with AVX2) and the single-ray traversal give
+/// Every packet kernel (AVX-512 32 and 16 lanes, AVX2 16 and 8 lanes) and the single-ray path.
+struct Kernel {
+  int width;
+  bool avx512;
+  /// Whether this CPU runs it (the limit then selects exactly it).
+  bool runs() const {
+    const PacketWidth limit(width, avx512);
+    const voxel::SvoPacketKernel k = voxel::svo_packet_kernel();
+    return k.width == width && k.avx512 == avx512;
+  }
+  std::string name() const { return std::to_string(width) + (width == 1 ? "" : avx512 ? " avx512" : " avx2"); }
+};
+constexpr Kernel kKernels[] = {{32, true}, {16, true}, {16, false}, {8, false}, {1, false}};
+
+// The packet kernels (32 and 16 lanes with AVX-512, 16 and 8 with AVX2) and the single-ray traversal give
 // bit-identical hits and transmittance to the brute force (the grid for the largest set), batch by batch and ray by ray,
 // in both hit modes, with and without level of detail and material skipping.
 TEST(SvoPacket, EveryKernelEqualsBruteForceOnCoherentBundles) {
@@ -419,8 +433,8 @@ TEST(SvoPacket, EveryKernelEqualsBruteForceOnCoherentBundles) {
       {"random d6 generic", random_set(generic_grid(6), 4000, 41)},
       {"block d4", block_set(dyadic_grid(4), 3, 12, 42)},
   };
-  const int cpu = voxel::svo_packet_width();
-  std::printf("[ info     ] packet width on this CPU: %d\n", cpu);
+  std::printf("[ info     ] packet width on this CPU: %d (%s)\n", voxel::svo_packet_width(),
+              voxel::svo_packet_kernel().avx512 ? "avx512" : "avx2 or none");
   for (const Case& c : cases) {
     const std::vector<Ray> rays = coherent_rays(c.set, 43);
     std::vector<uint32_t> skip(rays.size());
@@ -451,10 +465,10 @@ TEST(SvoPacket, EveryKernelEqualsBruteForceOnCoherentBundles) {
         EXPECT_EQ(differ, 0u) << c.name << " " << to_string(mode) << ": grid skipping the left voxel";
       }
       SparseVoxelOctree svo = SparseVoxelOctree::build(c.set, o);
-      for (const int width : {32, 16, 8, 1}) {
-        if (width > cpu && width != 1) continue;
-        const PacketWidth limit(width);
-        const std::string what = c.name + " " + to_string(mode) + " width " + std::to_string(width);
+      for (const Kernel& kernel : kKernels) {
+        if (!kernel.runs()) continue;
+        const PacketWidth limit(kernel.width, kernel.avx512);
+        const std::string what = c.name + " " + to_string(mode) + " width " + kernel.name();
         std::vector<Hit> hits(rays.size()), hits_skip(rays.size()), hits_leave(rays.size());
         std::vector<Vec3> tr(rays.size());
         TraceStats st;
@@ -503,15 +517,15 @@ TEST(SvoPacket, EveryKernelEqualsBruteForceOnCoherentBundles) {
         const PacketWidth limit(1);
         svo.intersect(rays, lod_ref);
       }
-      for (const int width : {32, 16, 8}) {
-        if (width > cpu) continue;
-        const PacketWidth limit(width);
+      for (const Kernel& kernel : kKernels) {
+        if (kernel.width == 1 || !kernel.runs()) continue;
+        const PacketWidth limit(kernel.width, kernel.avx512);
         std::vector<Hit> hits(rays.size());
         svo.intersect(rays, hits);
         size_t bad = 0;
         for (size_t i = 0; i < rays.size(); ++i)
           if (!same_hit(lod_ref[i], hits[i]) && ++bad <= 3)
-            ADD_FAILURE() << c.name << " lod width " << width << ": " << describe(hits[i]) << " vs " << describe(lod_ref[i]);
+            ADD_FAILURE() << c.name << " lod width " << kernel.name() << ": " << describe(hits[i]) << " vs " << describe(lod_ref[i]);
         EXPECT_EQ(bad, 0u);
       }
     }
@@ -581,7 +595,6 @@ TEST(SvoPacket, LeafSpansOfPacketsEqualTheKernelOnLatticeRays) {
   }
   std::vector<uint32_t> skip(rays.size());
   for (size_t i = 0; i < skip.size(); ++i) skip[i] = i % 2 == 0 ? kNoHit : static_cast<uint32_t>(i % 5);
-  const int cpu = voxel::svo_packet_width();
   size_t starts_inside = 0, face_hits = 0;
   for (const VoxelHitMode mode : {VoxelHitMode::Cubes, VoxelHitMode::Contours}) {
     VoxelTracerOptions o;
@@ -597,10 +610,10 @@ TEST(SvoPacket, LeafSpansOfPacketsEqualTheKernelOnLatticeRays) {
       (ref[i].t == rays[i].tmin ? starts_inside : face_hits) += 1;
     }
     const SparseVoxelOctree svo = SparseVoxelOctree::build(set, o);
-    for (const int width : {32, 16, 8, 1}) {
-      if (width > cpu && width != 1) continue;
-      const PacketWidth limit(width);
-      const std::string what = std::string(to_string(mode)) + " width " + std::to_string(width);
+    for (const Kernel& kernel : kKernels) {
+      if (!kernel.runs()) continue;
+      const PacketWidth limit(kernel.width, kernel.avx512);
+      const std::string what = std::string(to_string(mode)) + " width " + kernel.name();
       std::vector<Hit> hits(rays.size()), hits_skip(rays.size());
       std::vector<Vec3> tr(rays.size());
       svo.intersect(rays, hits);

@@ -230,11 +230,41 @@ SPECULA_V32 V32 v32_sel_ge(V32 a, V32 b, V32 x, V32 y) {
 }
 #undef SPECULA_V32
 
+/// 16 lanes as two AVX2 vectors (the widest packets without AVX-512), masks of 16 bits.
+struct alignas(32) V16 {
+  __m256 lo, hi;
+};
+#define SPECULA_V16 __attribute__((target("avx2,popcnt,bmi"), always_inline)) inline
+SPECULA_V16 V16 v16_load(const float* p) { return {_mm256_load_ps(p), _mm256_load_ps(p + 8)}; }
+SPECULA_V16 void v16_store(float* p, V16 a) {
+  _mm256_store_ps(p, a.lo);
+  _mm256_store_ps(p + 8, a.hi);
+}
+SPECULA_V16 V16 v16_set1(float x) { return {_mm256_set1_ps(x), _mm256_set1_ps(x)}; }
+SPECULA_V16 V16 v16_add(V16 a, V16 b) { return {_mm256_add_ps(a.lo, b.lo), _mm256_add_ps(a.hi, b.hi)}; }
+SPECULA_V16 V16 v16_sub(V16 a, V16 b) { return {_mm256_sub_ps(a.lo, b.lo), _mm256_sub_ps(a.hi, b.hi)}; }
+SPECULA_V16 V16 v16_mul(V16 a, V16 b) { return {_mm256_mul_ps(a.lo, b.lo), _mm256_mul_ps(a.hi, b.hi)}; }
+SPECULA_V16 V16 v16_div(V16 a, V16 b) { return {_mm256_div_ps(a.lo, b.lo), _mm256_div_ps(a.hi, b.hi)}; }
+SPECULA_V16 V16 v16_min(V16 a, V16 b) { return {_mm256_min_ps(a.lo, b.lo), _mm256_min_ps(a.hi, b.hi)}; }
+SPECULA_V16 V16 v16_max(V16 a, V16 b) { return {_mm256_max_ps(a.lo, b.lo), _mm256_max_ps(a.hi, b.hi)}; }
+template <int kCmp>
+SPECULA_V16 uint32_t v16_cmp(V16 a, V16 b) {
+  return static_cast<uint32_t>(_mm256_movemask_ps(_mm256_cmp_ps(a.lo, b.lo, kCmp))) |
+         static_cast<uint32_t>(_mm256_movemask_ps(_mm256_cmp_ps(a.hi, b.hi, kCmp))) << 8;
+}
+/// Per lane a >= b ? x : y (ordered).
+SPECULA_V16 V16 v16_sel_ge(V16 a, V16 b, V16 x, V16 y) {
+  return {_mm256_blendv_ps(y.lo, x.lo, _mm256_cmp_ps(a.lo, b.lo, _CMP_GE_OQ)),
+          _mm256_blendv_ps(y.hi, x.hi, _mm256_cmp_ps(a.hi, b.hi, _CMP_GE_OQ))};
+}
+#undef SPECULA_V16
+
 }  // namespace specula
 
 // The packet kernels: one source, compiled per vector width and instruction set: 8 lanes
-// (AVX2), 16 (AVX-512) and 32 (AVX-512, V32 above: the default there; 16 is kept for the tests
-// and for comparison).
+// (AVX2), 16 (AVX2 as two vectors, V16 above: the default there), 16 (AVX-512) and 32 (AVX-512
+// as two vectors, V32: the default there). The one-vector kernels are kept for the tests and
+// for comparison.
 #define SVO_NS svo_avx2
 #define SVO_TARGET __attribute__((target("avx2,popcnt,bmi")))
 #define SVO_WIDTH 8
@@ -253,6 +283,26 @@ SPECULA_V32 V32 v32_sel_ge(V32 a, V32 b, V32 x, V32 y) {
 #define SVO_DIV _mm256_div_ps
 #define SVO_LE(a, b) static_cast<uint32_t>(_mm256_movemask_ps(_mm256_cmp_ps((a), (b), _CMP_LE_OQ)))
 #define SVO_EQ(a, b) static_cast<uint32_t>(_mm256_movemask_ps(_mm256_cmp_ps((a), (b), _CMP_EQ_OQ)))
+#include "voxel/svo_packet.inc"  // (undefines the SVO_ macros at its end)
+
+#define SVO_NS svo_avx2x2
+#define SVO_TARGET __attribute__((target("avx2,popcnt,bmi")))
+#define SVO_WIDTH 16
+#define SVO_VF V16
+#define SVO_LOAD v16_load
+#define SVO_SET1 v16_set1
+#define SVO_SUB v16_sub
+#define SVO_MUL v16_mul
+#define SVO_MIN v16_min
+#define SVO_MAX v16_max
+#define SVO_LT(a, b) v16_cmp<_CMP_LT_OQ>((a), (b))
+#define SVO_GE(a, b) v16_cmp<_CMP_GE_OQ>((a), (b))
+#define SVO_SEL_GE(a, b, x, y) v16_sel_ge((a), (b), (x), (y))
+#define SVO_STORE v16_store
+#define SVO_ADD v16_add
+#define SVO_DIV v16_div
+#define SVO_LE(a, b) v16_cmp<_CMP_LE_OQ>((a), (b))
+#define SVO_EQ(a, b) v16_cmp<_CMP_EQ_OQ>((a), (b))
 #include "voxel/svo_packet.inc"  // (undefines the SVO_ macros at its end)
 
 #define SVO_NS svo_avx512
@@ -302,22 +352,32 @@ namespace specula {
 namespace voxel {
 namespace {
 std::atomic<int> g_packet_width_limit{kMaxPacket};
+std::atomic<bool> g_packet_avx512{true};
 
-int cpu_packet_width() {
-  static const int width = [] {
-    if (!__builtin_cpu_supports("avx2") || !__builtin_cpu_supports("popcnt") || !__builtin_cpu_supports("bmi")) return 1;
-    return __builtin_cpu_supports("avx512f") ? 32 : 8;
+/// 0: no packets; 1: AVX2; 2: AVX2 and AVX-512F.
+int cpu_packet_isa() {
+  static const int isa = [] {
+    if (!__builtin_cpu_supports("avx2") || !__builtin_cpu_supports("popcnt") || !__builtin_cpu_supports("bmi")) return 0;
+    return __builtin_cpu_supports("avx512f") ? 2 : 1;
   }();
-  return width;
+  return isa;
 }
 }  // namespace
 
-int svo_packet_width() {
-  // The widest kernel (32, 16, 8 lanes, or single rays) within the CPU's and the limit.
-  const int w = std::min(cpu_packet_width(), g_packet_width_limit.load(std::memory_order_relaxed));
-  return w >= 32 ? 32 : w >= 16 ? 16 : w >= 8 ? 8 : 1;
+SvoPacketKernel svo_packet_kernel() {
+  // The widest kernel within the CPU's instruction sets and the limits: AVX-512 32 lanes (two
+  // vectors) or 16; AVX2 16 lanes (two vectors) or 8; else single rays.
+  const int isa = std::min(cpu_packet_isa(), g_packet_avx512.load(std::memory_order_relaxed) ? 2 : 1);
+  const int limit = g_packet_width_limit.load(std::memory_order_relaxed);
+  if (isa == 0 || limit < 8) return {1, false};
+  if (isa == 2 && limit >= 16) return {limit >= 32 ? 32 : 16, true};
+  return {limit >= 16 ? 16 : 8, false};
 }
-void set_svo_packet_width_limit(int width) { g_packet_width_limit.store(std::max(width, 1), std::memory_order_relaxed); }
+int svo_packet_width() { return svo_packet_kernel().width; }
+void set_svo_packet_width_limit(int width, bool avx512) {
+  g_packet_width_limit.store(std::max(width, 1), std::memory_order_relaxed);
+  g_packet_avx512.store(avx512, std::memory_order_relaxed);
+}
 }  // namespace voxel
 
 class SvoTraversal {
@@ -403,7 +463,8 @@ class SvoTraversal {
     }
     const uint32_t valid = start[7];  // after the loop start[k] is the end of octant k
 
-    const int width = s.grid_.depth == 0 ? 1 : voxel::svo_packet_width();
+    const voxel::SvoPacketKernel kernel = voxel::svo_packet_kernel();
+    const int width = s.grid_.depth == 0 ? 1 : kernel.width;
     const int32_t root[3] = {0, 0, 0};
     const auto single = [&](uint32_t i) {
       const LocalRay& r = lr[i];
@@ -474,7 +535,8 @@ class SvoTraversal {
       // test too (see packet_walk): kSpan 0 none, 1 spans, 2 spans and contours.
       const auto run = [&]<bool kFixed, int kSpan>() {
         if (width == 32) svo_avx512x2::packet_walk<kStats, kFixed, kSpan>(v, p, mirror, lanes, stats, leaf, scalar);
-        else if (width == 16) svo_avx512::packet_walk<kStats, kFixed, kSpan>(v, p, mirror, lanes, stats, leaf, scalar);
+        else if (width == 16 && kernel.avx512) svo_avx512::packet_walk<kStats, kFixed, kSpan>(v, p, mirror, lanes, stats, leaf, scalar);
+        else if (width == 16) svo_avx2x2::packet_walk<kStats, kFixed, kSpan>(v, p, mirror, lanes, stats, leaf, scalar);
         else svo_avx2::packet_walk<kStats, kFixed, kSpan>(v, p, mirror, lanes, stats, leaf, scalar);
       };
       if (fixed) {

@@ -245,11 +245,17 @@ inline bool hit_cell(const LocalRay& r, const uint32_t c[3], const VoxelAttribut
   return cell_span(r, c, s) && hit_span(r, c, a, mode, s, h);
 }
 
-/// Width of the octree's packet traversal on this CPU (32 with AVX-512, 8 with AVX2, 1 = single
-/// rays only), capped by set_svo_packet_width_limit (tests use it to run every kernel: the
-/// widest of 32, 16, 8 and 1 within the cap).
-int svo_packet_width();
-void set_svo_packet_width_limit(int width);
+/// The octree's packet kernel on this CPU: lanes per packet (32 with AVX-512, 16 with AVX2, 1 =
+/// single rays only) and whether it uses AVX-512; within the limits of
+/// set_svo_packet_width_limit (tests use it to run every kernel: the widest of 32, 16, 8 and 1
+/// within \p width, AVX-512 ones only when \p avx512).
+struct SvoPacketKernel {
+  int width;
+  bool avx512;
+};
+SvoPacketKernel svo_packet_kernel();
+int svo_packet_width();  ///< svo_packet_kernel().width
+void set_svo_packet_width_limit(int width, bool avx512 = true);
 
 /// Throws specula::Error unless \p set is valid for a tracer (see build_voxel_tracer).
 void validate_set(const VoxelSet& set, const char* who);
