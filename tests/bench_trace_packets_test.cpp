@@ -8,6 +8,7 @@
 #include <nlohmann/json.hpp>
 
 #include "cli_test_util.h"
+#include "specula/accel.h"
 #include "test_util.h"
 
 namespace fs = std::filesystem;
@@ -39,6 +40,7 @@ TEST_F(BenchTracePackets, JsonHasPrimaryAndShadowPacketRows) {
   for (const auto& k : j["packets"]) {
     kinds.push_back(k["kind"].get<std::string>());
     EXPECT_EQ(k["order"], "4x4 pixel blocks");
+    EXPECT_EQ(k["packet_rays"].get<int>(), specula::bvh_packet_rays(specula::BvhKernel::Auto)) << k.dump();
     EXPECT_GT(k["count"].get<int>(), 0) << k.dump();
     EXPECT_GT(k["specula_1t"].get<double>(), 0.0) << k.dump();
     EXPECT_GT(k["specula_nt"].get<double>(), 0.0) << k.dump();
@@ -59,7 +61,10 @@ TEST_F(BenchTracePackets, JsonHasPrimaryAndShadowPacketRows) {
 TEST_F(BenchTracePackets, TableHasThePacketSection) {
   const RunResult r = run_cli("bench trace --scene cornell --width 24 --height 16 --repeat 1 --no-embree", dir_);
   ASSERT_EQ(r.exit_code, 0) << r.err;
-  EXPECT_NE(r.out.find("packets: 16 rays in 4x4 pixel blocks"), std::string::npos) << r.out;
+  EXPECT_NE(r.out.find("packets: rays in 4x4 pixel blocks, traced " + std::to_string(specula::bvh_packet_rays(specula::BvhKernel::Auto)) +
+                       " at a time by ours"),
+            std::string::npos)
+      << r.out;
   EXPECT_NE(r.out.find("in pkts"), std::string::npos) << r.out;
 }
 

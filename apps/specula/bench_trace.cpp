@@ -490,6 +490,7 @@ int bench_trace(const BenchTraceOptions& options) {
       k["count"] = r.count;
       k["unit"] = r.unit;
       k["order"] = "4x4 pixel blocks";
+      k["packet_rays"] = bvh_packet_rays(options.bvh.kernel);
       k["in_packets"] = packet_share[i];
       k["specula_1t"] = r.s1;
       k["specula_nt"] = r.sn;
@@ -541,7 +542,9 @@ int bench_trace(const BenchTraceOptions& options) {
       std::printf(" | %9s %9s\n", fmt("%.2f", r.nodes).c_str(), fmt("%.2f", r.triangles).c_str());
   }
   if (!packet_rows.empty()) {
-    std::printf("\npackets: 16 rays in 4x4 pixel blocks; Embree rtcIntersect16 / rtcOccluded16 (coherent context)\n");
+    std::printf("\npackets: rays in 4x4 pixel blocks, traced %d at a time by ours (%s), 16 by Embree's rtcIntersect16 / "
+                "rtcOccluded16 (coherent context)\n",
+                bvh_packet_rays(options.bvh.kernel), kernel);
     std::printf("%-10s %9s %8s |", "", "rays", "in pkts");
     cells(12, "specula 1T", "specula " + nt);
     if (with_embree) {

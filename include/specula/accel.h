@@ -50,6 +50,9 @@ inline bool bvh_kernel_is_8_wide(BvhKernel kernel) {
 }
 /// \p kernel with Auto replaced by the best kernel this CPU runs.
 BvhKernel resolve_bvh_kernel(BvhKernel kernel);
+/// Rays per packet of \p kernel (BvhOptions::packets): groups of this many consecutive rays
+/// are traced together when coherent (32 for every kernel).
+int bvh_packet_rays(BvhKernel kernel);
 
 /// How hard the build works on the tree. Fast: the binned-SAH tree with SAH-terminated leaves
 /// (the default; what dynamic scenes and comparisons with other builders use). High, for static
@@ -77,9 +80,9 @@ struct BvhOptions {
   int threads = 0;            ///< 0 = all hardware threads
   BvhKernel kernel = BvhKernel::Auto;  ///< traversal layout; an unsupported one throws at build
   BvhQuality quality = BvhQuality::Fast;  ///< High: reinsertion optimisation after the build
-  /// Trace coherent rays as packets: each group of 16 consecutive rays of a batch (from the
-  /// start of the span) whose rays share direction signs and dominant axis goes through the
-  /// tree together (frustum culling, early-in), the others one by one. Results are
+  /// Trace coherent rays as packets: each group of bvh_packet_rays() consecutive rays of a batch
+  /// (from the start of the span) whose rays share direction signs and dominant axis goes
+  /// through the tree together (frustum culling, early-in), the others one by one. Results are
   /// bit-identical either way; only speed differs. Integrators help by putting neighbouring
   /// pixels' rays next to each other (4x4 blocks).
   bool packets = true;

@@ -31,7 +31,7 @@
 // directly, two with one compare, more are pushed and insertion-sorted on the stack top;
 // pushed subtrees are prefetched.
 //
-// Packets (bvh_packet.inc, included into every kernel): groups of 16 consecutive coherent rays
+// Packets (bvh_packet.inc, included into every kernel): groups of 32 consecutive coherent rays
 // of a batch go through the tree together with a frustum test per node, seed 004's early-in
 // (the first active ray's slab test) and exact per-ray tests where a ray mask is needed; they
 // hand subtrees that few rays enter to the single-ray walks above (closest_walk, transmit_walk),
@@ -163,6 +163,15 @@ struct BvhView {
 #undef SPECULA_KERNEL_WIDTH
 #undef SPECULA_KERNEL_TARGET
 #undef SPECULA_KERNEL_PAIRS
+
+int bvh_packet_rays(BvhKernel kernel) {
+  switch (resolve_bvh_kernel(kernel)) {
+    case BvhKernel::Avx512x16: return avx512x16::P;
+    case BvhKernel::Avx512x8: return avx512x8::P;
+    case BvhKernel::Avx2x8: return avx2x8::P;
+    default: return sse4::P;
+  }
+}
 
 class BvhTraversal {
  public:

@@ -818,8 +818,8 @@ void render_tile(const Context& ctx, const SkyEval& sky, Scratch& s, const Pinho
   s.accum.assign(npix, Vec3{});
   if (ctx.want_cost) s.cost.assign(npix, 0);
   // Primary rays in 4x4 pixel blocks: every 16 consecutive rays of the wavefront are neighbours,
-  // which a tracer may trace as one packet (the BVH does), and so are the shadow rays their hits
-  // shoot. Each pixel's own segments keep their order, so the image is the same bit for bit.
+  // which a tracer may trace as one packet (the BVH and the octree take two blocks at a time),
+  // and so are the shadow rays their hits shoot. Each pixel's own segments keep their order, so the image is the same bit for bit.
   // The camera's per-column half of the direction is computed once per column of the tile
   // (PinholeCamera::column: the same sum in the same order as generate()).
   ensure_size(s.columns, static_cast<size_t>(tw));
