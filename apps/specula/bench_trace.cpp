@@ -518,24 +518,29 @@ int bench_trace(const BenchTraceOptions& options) {
     const double x = ratio(r, ours, theirs);
     return x > 0.0 ? fmt("%.2fx", x) : std::string("-");
   };
-  std::printf("\n%-10s %9s %8s |", "", "rays", "unit");
-  cells(12, "specula 1T", "specula " + nt);
-  if (with_embree) {
+  // The header's and a row's measurement columns: ours, then Embree's and the ratios.
+  const auto header_cells = [&](const char* embree_name) {
+    cells(12, "specula 1T", "specula " + nt);
+    if (!with_embree) return;
     std::printf(" |");
-    cells(12, "embree 1T", "embree " + nt);
+    cells(12, std::string(embree_name) + " 1T", std::string(embree_name) + " " + nt);
     std::printf(" |");
     cells(9, "ours/e 1T", "ours/e " + nt);
-  }
+  };
+  const auto row_cells = [&](const Row& r) {
+    cells(12, fmt("%.2f", r.s1), fmt("%.2f", r.sn));
+    if (!with_embree) return;
+    std::printf(" |");
+    cells(12, fmt("%.2f", r.e1), fmt("%.2f", r.en));
+    std::printf(" |");
+    cells(9, ratio_cell(r, r.s1, r.e1), ratio_cell(r, r.sn, r.en));
+  };
+  std::printf("\n%-10s %9s %8s |", "", "rays", "unit");
+  header_cells("embree");
   std::printf(" | %9s %9s\n", "nodes/ray", "tris/ray");
   for (const Row& r : rows) {
     std::printf("%-10s %9zu %8s |", r.name.c_str(), r.count, r.unit);
-    cells(12, fmt("%.2f", r.s1), fmt("%.2f", r.sn));
-    if (with_embree) {
-      std::printf(" |");
-      cells(12, fmt("%.2f", r.e1), fmt("%.2f", r.en));
-      std::printf(" |");
-      cells(9, ratio_cell(r, r.s1, r.e1), ratio_cell(r, r.sn, r.en));
-    }
+    row_cells(r);
     if (r.name == "build")
       std::printf(" | %9s %9s\n", "", "");
     else
@@ -546,24 +551,12 @@ int bench_trace(const BenchTraceOptions& options) {
                 "rtcOccluded16 (coherent context)\n",
                 bvh_packet_rays(options.bvh.kernel), kernel);
     std::printf("%-10s %9s %8s |", "", "rays", "in pkts");
-    cells(12, "specula 1T", "specula " + nt);
-    if (with_embree) {
-      std::printf(" |");
-      cells(12, "embree16 1T", "embree16 " + nt);
-      std::printf(" |");
-      cells(9, "ours/e 1T", "ours/e " + nt);
-    }
+    header_cells("embree16");
     std::printf("\n");
     for (size_t i = 0; i < packet_rows.size(); ++i) {
       const Row& r = packet_rows[i];
       std::printf("%-10s %9zu %8s |", r.name.c_str(), r.count, fmt("%.0f%%", 100.0 * packet_share[i]).c_str());
-      cells(12, fmt("%.2f", r.s1), fmt("%.2f", r.sn));
-      if (with_embree) {
-        std::printf(" |");
-        cells(12, fmt("%.2f", r.e1), fmt("%.2f", r.en));
-        std::printf(" |");
-        cells(9, ratio_cell(r, r.s1, r.e1), ratio_cell(r, r.sn, r.en));
-      }
+      row_cells(r);
       std::printf("\n");
     }
   }
