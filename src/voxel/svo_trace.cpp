@@ -230,7 +230,9 @@ SPECULA_V32 V32 v32_sel_ge(V32 a, V32 b, V32 x, V32 y) {
 }
 #undef SPECULA_V32
 
-/// 16 lanes as two AVX2 vectors (the widest packets without AVX-512), masks of 16 bits.
+/// 16 lanes as two AVX2 vectors (the widest packets without AVX-512), masks of 16 bits. (V32's
+/// twin rather than one template over both: its functions would need one target attribute for
+/// both instruction sets, and the AVX2 kernel cannot inline functions that may use AVX-512.)
 struct alignas(32) V16 {
   __m256 lo, hi;
 };
