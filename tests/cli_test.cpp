@@ -560,7 +560,9 @@ TEST_F(Cli, BenchTraceJsonHasEveryRayKindAndTheKernel) {
   EXPECT_NE(t1.out.find(", 1 thread,"), std::string::npos) << t1.out;
   const RunResult j1 = run_cli("bench trace --scene cornell --width 24 --height 16 --repeat 1 --no-embree --threads 1 --json", dir_);
   ASSERT_EQ(j1.exit_code, 0) << j1.err;
-  for (const auto& k : nlohmann::json::parse(j1.out)["results"])
+  // Parsed into a local: a temporary's member in the range would not outlive the loop's start.
+  const nlohmann::json j1_json = nlohmann::json::parse(j1.out);
+  for (const auto& k : j1_json["results"])
     EXPECT_EQ(k["specula_nt"].get<double>(), k["specula_1t"].get<double>()) << k.dump();
   EXPECT_NE(run_cli("bench trace --scene cornell --bvh-kernel avx9", dir_).exit_code, 0);
   // --embree-robust asks for an Embree comparison: with --no-embree it is a usage error.
