@@ -433,8 +433,8 @@ TEST(SvoPacket, EveryKernelEqualsBruteForceOnCoherentBundles) {
       {"random d6 generic", random_set(generic_grid(6), 4000, 41)},
       {"block d4", block_set(dyadic_grid(4), 3, 12, 42)},
   };
-  std::printf("[ info     ] packet width on this CPU: %d (%s)\n", voxel::svo_packet_width(),
-              voxel::svo_packet_kernel().avx512 ? "avx512" : "avx2 or none");
+  const voxel::SvoPacketKernel cpu = voxel::svo_packet_kernel();
+  std::printf("[ info     ] packet width on this CPU: %d (%s)\n", cpu.width, cpu.avx512 ? "avx512" : "avx2 or none");
   for (const Case& c : cases) {
     const std::vector<Ray> rays = coherent_rays(c.set, 43);
     std::vector<uint32_t> skip(rays.size());

@@ -375,7 +375,6 @@ SvoPacketKernel svo_packet_kernel() {
   if (isa == 2 && limit >= 16) return {limit >= 32 ? 32 : 16, true};
   return {limit >= 16 ? 16 : 8, false};
 }
-int svo_packet_width() { return svo_packet_kernel().width; }
 void set_svo_packet_width_limit(int width, bool avx512) {
   g_packet_width_limit.store(std::max(width, 1), std::memory_order_relaxed);
   g_packet_avx512.store(avx512, std::memory_order_relaxed);

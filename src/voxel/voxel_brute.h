@@ -254,7 +254,6 @@ struct SvoPacketKernel {
   bool avx512;
 };
 SvoPacketKernel svo_packet_kernel();
-int svo_packet_width();  ///< svo_packet_kernel().width
 void set_svo_packet_width_limit(int width, bool avx512 = true);
 
 /// Throws specula::Error unless \p set is valid for a tracer (see build_voxel_tracer).
